@@ -1,0 +1,30 @@
+"""moju_core: dense non-rigid structure from motion by MoJu (Kumar, CVPR 2019).
+
+The one entry point is :func:`reconstruct`; parameters are :class:`SolverParams`, the answer is
+a :class:`Result`.
+"""
+
+from moju_core.errors import Cancelled, MeasurementError
+from moju_core.params import SolverParams
+from moju_core.result import Progress, Result
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Cancelled",
+    "MeasurementError",
+    "Progress",
+    "Result",
+    "SolverParams",
+    "__version__",
+    "reconstruct",
+]
+
+
+def __getattr__(name: str):
+    # The solver pulls in scikit-learn; load it only when it is asked for.
+    if name == "reconstruct":
+        from moju_core.solver import reconstruct
+
+        return reconstruct
+    raise AttributeError(name)

@@ -1,0 +1,170 @@
+"""Data-derived defaults: every ``None`` in :class:`SolverParams` gets a value from a rule here.
+
+The rules read only the sizes of the problem (F frames, P points), for the number of shape
+bases the singular values of the scale-normalised measurements and, for the PTA basis, the
+camera rotations, so the solver needs no hand tuning. Each rule is written next to its reason;
+every value can be overridden.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from moju_core.params import SolverParams
+from moju_core.pta import dct_basis, trajectory_system
+
+#: Target number of trajectories per local group. Large enough that a group's rank-p
+#: approximation is well determined (many more columns than p) and small enough that a group
+#: covers a patch of surface that deforms nearly linearly.
+POINTS_PER_GROUP = 150
+
+#: Below this many groups there is no local structure to exploit: the solver runs the plain
+#: nuclear-norm loop (``n_groups`` resolves to 1).
+MIN_GROUPS = 4
+
+#: Default subspace dimension p: a smooth surface patch's trajectories are close to an affine
+#: function of its two surface coordinates (rank 3); one more dimension absorbs curvature.
+SUBSPACE_DIM = 4
+
+#: Upper bound of the default number of groups (the LRR step costs O(K^3)).
+MAX_DEFAULT_GROUPS = 600
+
+#: Weight of the nuclear norm relative to the largest singular value of the initial shape
+#: matrix ``f(pinv(R) W)``. The loop is a continuation: the S# step thresholds singular values
+#: at ``beta2 / rho``, which starts at 0.2 x the top singular value (rho = 1e-2) and relaxes by
+#: the factor c = 1.1 per iteration; the depth is found during that relaxation. Relative to the
+#: data, the value is scale free. Measured on the synthetic faces (10 and 99 frames, 1,500
+#: points, known rotations; bmm e3D for 2e-3 / 4e-3 / 7e-3: face1 0.039 / 0.040 / 0.042, face3
+#: 0.014 / 0.017 / 0.023) and far worse below 1e-3 (face1 0.11 at 3e-4): the thresholds then
+#: fall too fast for the depth to emerge before the gap closes.
+BETA2_RELATIVE = 2e-3
+
+
+#: Largest condition number of the PTA system accepted by the default basis size: errors in the
+#: tracks may grow at most tenfold in the trajectory coefficients.
+PTA_MAX_CONDITION = 10.0
+
+
+def min_group_size(p: int) -> int:
+    """Smallest local group: twice the subspace dimension (the docs' ``>= 2p``), at least 8."""
+    return max(2 * p, 8)
+
+
+def trajectory_basis_size(rotations: np.ndarray) -> int:
+    """Default size k of the PTA trajectory basis (method ``pta``): the largest k whose system
+    is well conditioned.
+
+    PTA solves ``W = M A`` with ``M = R (Theta kron I_3)``
+    (:func:`moju_core.pta.trajectory_system`); the condition number of M is the factor by
+    which errors in the tracks (noise, and the part of the trajectories outside the basis) can
+    grow in the coefficients. It rises quickly with k once the low cosines can imitate the
+    camera's own motion (slow, smooth rotation), and without a bound the solve is useless: on
+    face4 (one slow yaw cycle; 1,500 points, known rotations) k = 12 gives condition 1.5e6 and
+    e3D 75. The rule takes the largest k with ``3k <= 2F`` whose condition stays below
+    :data:`PTA_MAX_CONDITION`: k = 2 on face4 (condition 4, e3D 0.11), k = 6 on the sequences
+    whose camera sweeps three times (face3, paper, cloth: e3D 0.010, 0.006, 0.030, the best k
+    of each), k = 1-2 on the 10-frame faces.
+
+    Parameters
+    ----------
+    rotations : ndarray of shape (F, 2, 3)
+        Camera rotations the solve will use.
+
+    Returns
+    -------
+    int
+        k >= 1 (k = 1 is the rigid solution: one constant coefficient shape per point).
+    """
+    n_frames = rotations.shape[0]
+    best = 1
+    for size in range(2, min(n_frames, 2 * n_frames // 3) + 1):
+        singular = np.linalg.svd(
+            trajectory_system(rotations, dct_basis(n_frames, size)), compute_uv=False
+        )
+        if singular[-1] * PTA_MAX_CONDITION < singular[0]:
+            break  # the condition only grows with k: stop at the first failure
+        best = size
+    return best
+
+
+def resolve(
+    params: SolverParams,
+    n_frames: int,
+    n_points: int,
+    top_singular_value: float,
+    *,
+    rotations: np.ndarray | None = None,
+) -> SolverParams:
+    """Fill in every data-derived default of ``params``.
+
+    Parameters
+    ----------
+    params : SolverParams
+        User parameters; fields set by the user are kept.
+    n_frames, n_points : int
+        F and P.
+    top_singular_value : float
+        Largest singular value of the initial shape matrix ``S# = f(pinv(R) W)`` of the
+        scale-normalised tracks.
+    rotations : ndarray of shape (F, 2, 3), optional
+        Camera rotations; needed only to derive ``trajectory_bases`` for method ``pta``.
+
+    Returns
+    -------
+    SolverParams
+        A copy with no ``None`` left among the solver's numeric fields (``n_bases`` is resolved
+        by the rotation step and may stay ``None`` when rotations are known;
+        ``trajectory_bases`` is resolved for method ``pta`` only).
+    """
+    trajectory_length = 3 * n_frames
+    p = params.subspace_dim or min(SUBSPACE_DIM, trajectory_length - 1)
+    if params.method in ("bmm", "pta"):
+        n_groups = 1
+    elif params.n_groups is not None:
+        n_groups = params.n_groups
+    else:
+        n_groups = min(MAX_DEFAULT_GROUPS, n_points // POINTS_PER_GROUP)
+        # Fewer points: smaller groups, but never below the minimum size.
+        if n_groups < MIN_GROUPS:
+            n_groups = min(MIN_GROUPS, n_points // (2 * min_group_size(p)))
+        if n_groups < MIN_GROUPS:
+            n_groups = 1
+    n_clusters = params.n_clusters or max(2, n_groups // 8)
+    if n_groups > 1:
+        n_clusters = min(n_clusters, n_groups - 1)
+    d_low = params.low_dim or min(trajectory_length - 1, 2 * p + 2)
+    d_low = max(d_low, p)
+    beta2 = params.beta2 or BETA2_RELATIVE * top_singular_value
+    beta1 = params.beta1 or 1.0
+    # Keep kernel eigen-directions whose eigenvalue exceeds p / 2 (half the self-similarity of
+    # one subspace): LRR with a Frobenius error term shrinks the kernel's eigenvalues gamma by
+    # max(0, 1 - beta3 / (2 beta1 gamma)).
+    beta3 = params.beta3 or beta1 * p
+    trajectory_bases = params.trajectory_bases
+    if params.method == "pta" and trajectory_bases is None:
+        if rotations is None:
+            raise ValueError("method 'pta' needs the rotations to derive trajectory_bases")
+        trajectory_bases = trajectory_basis_size(rotations)
+    return params.model_copy(
+        update={
+            "trajectory_bases": trajectory_bases,
+            "subspace_dim": p,
+            "n_groups": n_groups,
+            "n_clusters": n_clusters,
+            "low_dim": d_low,
+            "beta1": beta1,
+            "beta2": beta2,
+            "beta3": beta3,
+        }
+    )
+
+
+def expected_iterations(params: SolverParams) -> int:
+    """Iterations until rho reaches rho_max (the loop may stop earlier on the gap); 1 for
+    ``pta``, which solves in closed form."""
+    if params.method == "pta":
+        return 1
+    growth = math.log(max(params.rho_max / params.rho, 1.0)) / math.log(params.rho_growth)
+    return max(1, min(params.max_iter, math.ceil(growth) + 1))

@@ -1,0 +1,103 @@
+"""Solver parameters: the one schema shared by the library, the CLI, the API and the worker.
+
+Every field that is ``None`` is derived from the data by :func:`moju_core.defaults.resolve`
+with a documented rule, so a user never has to tune anything by hand; every derived value can
+be overridden by setting the field.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Method = Literal["moju", "sdg", "bmm", "pta"]
+RotationMethod = Literal["intersection", "rigid", "known"]
+Grouping = Literal["adaptive", "fixed"]
+
+
+class SolverParams(BaseModel):
+    """Parameters of :func:`moju_core.reconstruct`.
+
+    Unknown keys are rejected (``extra="forbid"``) so that a typo in a parameter name is an
+    error and not a silently ignored setting.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    method: Method = Field(
+        "moju",
+        description=(
+            "'moju': local subspaces clustered on the low-dimensional Grassmann manifold "
+            "(the paper); 'sdg': the same loop clustering the high-dimensional Grassmann "
+            "points directly (Kumar et al. CVPR 2018 in spirit); 'bmm': only the nuclear norm "
+            "of the shape matrix (Dai et al.'s prior-free method, no local groups); 'pta': "
+            "trajectories in a DCT basis of size trajectory_bases, one least-squares solve "
+            "(Akhter et al.'s point trajectory approach, no iterations)."
+        ),
+    )
+    rotations: RotationMethod = Field(
+        "intersection",
+        description=(
+            "How camera rotations are obtained: 'intersection' (Dai et al.'s method), "
+            "'rigid' (Tomasi-Kanade with metric upgrade) or 'known' (supplied with the input)."
+        ),
+    )
+    n_bases: int | None = Field(
+        None, ge=1, le=10, description="Number of shape bases K for rotation estimation."
+    )
+    n_groups: int | None = Field(
+        None, ge=1, le=5000, description="Number of local trajectory groups (Grassmann points)."
+    )
+    subspace_dim: int | None = Field(
+        None, ge=1, le=30, description="Dimension p of each local subspace."
+    )
+    low_dim: int | None = Field(
+        None, ge=1, le=300, description="Dimension of the low-dimensional Grassmann manifold."
+    )
+    n_clusters: int | None = Field(
+        None, ge=1, le=5000, description="Number of spectral clusters of Grassmann points."
+    )
+    n_neighbors: int = Field(
+        8,
+        ge=1,
+        le=1000,
+        description=(
+            "Spatial neighbours per group in the similarity graph; a value of at least "
+            "n_groups - 1 connects every pair of groups (the full graph)."
+        ),
+    )
+    grouping: Grouping = Field(
+        "adaptive",
+        description=(
+            "'adaptive': the groups follow the subspace structure (graph, jump, LRR and "
+            "clustering steps 4-8 move trajectories between groups); 'fixed': the initial "
+            "k-means groups are kept and steps 4-8 are skipped (local reconstruction only, an "
+            "ablation). Ignored by 'bmm' and 'pta'."
+        ),
+    )
+    beta1: float | None = Field(None, gt=0, le=1e6, description="Weight of the LRR error term.")
+    beta2: float | None = Field(
+        None, gt=0, le=1e6, description="Weight of the nuclear norm of the shape matrix S#."
+    )
+    beta3: float | None = Field(
+        None, gt=0, le=1e6, description="Weight of the nuclear norm of the coefficients Z."
+    )
+    trajectory_bases: int | None = Field(
+        None,
+        ge=1,
+        le=1000,
+        description=(
+            "Size k of the DCT trajectory basis of method 'pta' (needs 3k <= 2F); ignored by "
+            "the other methods."
+        ),
+    )
+    regroup_every: int = Field(
+        10, ge=1, le=1000, description="Run the grouping steps 4-8 every m-th iteration."
+    )
+    max_iter: int = Field(300, ge=1, le=10000, description="Iteration cap of the ADMM loop.")
+    tol: float = Field(1e-10, gt=0, le=1.0, description="Convergence threshold on the gap.")
+    rho: float = Field(1e-2, gt=0, le=1e6, description="Initial penalty parameter.")
+    rho_max: float = Field(1e8, gt=0, le=1e12, description="Largest penalty parameter.")
+    rho_growth: float = Field(1.1, gt=1.0, le=10.0, description="Penalty growth factor c.")
+    seed: int = Field(0, ge=0, le=2**32 - 1, description="Seed of every random choice.")

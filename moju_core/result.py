@@ -1,0 +1,74 @@
+"""What the solver returns and what it reports while it runs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from moju_core.params import SolverParams
+
+
+@dataclass(frozen=True)
+class Progress:
+    """One progress report handed to the ``callback`` of :func:`moju_core.reconstruct`.
+
+    ``stage`` is one of ``"validating"``, ``"rotations"``, ``"initialising"``,
+    ``"iterating"``, ``"finishing"``. ``gap`` is the ADMM primal gap of Algorithm 1 step 15
+    (``nan`` before the loop starts). ``fraction`` is an estimate in [0, 1] of the work done,
+    ``elapsed`` and ``eta`` are seconds (``eta`` is ``None`` when unknown).
+    """
+
+    stage: str
+    iteration: int
+    max_iter: int
+    gap: float
+    rho: float
+    fraction: float
+    elapsed: float
+    eta: float | None
+
+
+@dataclass
+class Result:
+    """Reconstruction of one sequence.
+
+    Attributes
+    ----------
+    shapes : ndarray of shape (F, P, 3), float64
+        Per-frame 3D points in the units of the input tracks, each frame centred.
+    rotations : ndarray of shape (F, 2, 3), float64
+        Per-frame camera rotations (rows orthonormal) used by the solver.
+    labels : ndarray of shape (P,), int64
+        Local group of every point after the last regrouping.
+    history : dict of str to ndarray of shape (n_iter,)
+        Per-iteration ``gap``, ``rho``, ``gap_shape``, ``gap_coefficients``,
+        ``reprojection`` (RMS reprojection error, input units), ``nuclear_norm`` and
+        ``relabelled`` (number of points that changed group).
+    timings : dict of str to float
+        Seconds spent per stage (``rotations``, ``initialise``, ``iterate``, ``total``).
+    params : SolverParams
+        The parameters actually used, with every data-derived default filled in.
+    n_iter : int
+        Number of ADMM iterations run.
+    stop_reason : str
+        ``"converged"`` (gap below ``tol``), ``"rho_max"`` or ``"max_iter"``.
+    scale : float
+        The factor the tracks were divided by before solving (RMS of the centred tracks).
+    """
+
+    shapes: np.ndarray
+    rotations: np.ndarray
+    labels: np.ndarray
+    history: dict[str, np.ndarray]
+    timings: dict[str, float]
+    params: SolverParams
+    n_iter: int
+    stop_reason: str
+    scale: float
+    extras: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def converged(self) -> bool:
+        """True when the loop stopped because the gap fell below ``tol``."""
+        return self.stop_reason == "converged"

@@ -1,0 +1,256 @@
+"""The one entry point: :func:`reconstruct`."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from moju_core import __version__, admm, camera, clustering, defaults, pta
+from moju_core.errors import Cancelled, MeasurementError
+from moju_core.params import SolverParams
+from moju_core.preprocessing import normalise
+from moju_core.result import Progress, Result
+from moju_core.rotations import choose_n_bases, estimate_rotations
+from moju_core.validation import check_measurements, check_rotations
+
+#: ``callback(progress) -> bool | None``; returning True asks the solver to stop (it then
+#: raises :class:`moju_core.errors.Cancelled`).
+ProgressCallback = Callable[[Progress], "bool | None"]
+
+
+class _Reporter:
+    """Turns solver events into :class:`Progress` reports and honours cancellation."""
+
+    def __init__(self, callback: ProgressCallback | None, max_iter: int) -> None:
+        self.callback = callback
+        self.start = time.perf_counter()
+        self.loop_start: float | None = None
+        self.max_iter = max_iter
+        self.expected = max_iter
+
+    def __call__(
+        self, stage: str, iteration: int = 0, gap: float = float("nan"), rho: float = float("nan")
+    ) -> None:
+        if self.callback is None:
+            return
+        now = time.perf_counter()
+        eta = None
+        fraction = {"validating": 0.0, "rotations": 0.01, "initialising": 0.03}.get(stage, 1.0)
+        if stage == "iterating":
+            if self.loop_start is None:
+                self.loop_start = now
+            done = min(iteration / self.expected, 1.0)
+            fraction = 0.05 + 0.9 * done
+            if iteration:
+                eta = (now - self.loop_start) / iteration * max(self.expected - iteration, 0)
+        progress = Progress(
+            stage=stage,
+            iteration=iteration,
+            max_iter=self.max_iter,
+            gap=gap,
+            rho=rho,
+            fraction=fraction,
+            elapsed=now - self.start,
+            eta=eta,
+        )
+        if self.callback(progress):
+            raise Cancelled(f"stopped by the progress callback at stage {stage!r}")
+
+
+def reconstruct(
+    W: np.ndarray,
+    params: SolverParams | None = None,
+    *,
+    rotations: np.ndarray | None = None,
+    callback: ProgressCallback | None = None,
+    threads: int | None = 1,
+) -> Result:
+    """Recover camera rotations and per-frame 3D shapes from dense 2D tracks.
+
+    Parameters
+    ----------
+    W : array_like of shape (2F, P)
+        Measurement matrix: rows ``2f`` and ``2f + 1`` are the x and y image coordinates of
+        frame f, column j is point j (any unit, e.g. pixels).
+    params : SolverParams, optional
+        Solver parameters; ``None`` means all defaults (every ``None`` field is derived from
+        the data, see :mod:`moju_core.defaults`).
+    rotations : array_like of shape (F, 2, 3), optional
+        Known camera rotations. Required when ``params.rotations == "known"``; when given and
+        ``params.rotations`` was not set explicitly, they are used (``rotations="known"``).
+    callback : callable, optional
+        ``callback(progress: Progress) -> bool | None``, called at every stage change and
+        every iteration; returning True stops the solver, which raises
+        :class:`~moju_core.errors.Cancelled`.
+    threads : int or None, default 1
+        BLAS threads while solving (through threadpoolctl); ``None`` leaves the process's
+        setting alone. One by default: the loop is many medium-sized products and memory-bound
+        passes, and on a 2-core machine two OpenBLAS threads made it 4-10 times slower as soon
+        as any other process was busy (``benchmarks/speed.py`` measures both).
+
+    Returns
+    -------
+    Result
+        Shapes (F, P, 3) in the input's units with every frame centred, rotations (F, 2, 3),
+        labels (P,), history, timings and the resolved parameters.
+
+    Raises
+    ------
+    MeasurementError
+        When the input cannot be used (with a message saying why and how to fix it).
+    Cancelled
+        When the callback asks to stop.
+    """
+    if threads is None:
+        return _reconstruct(W, params, rotations, callback)
+    with threadpool_limits(limits=threads):
+        return _reconstruct(W, params, rotations, callback)
+
+
+def _reconstruct(
+    W: np.ndarray,
+    params: SolverParams | None,
+    rotations: np.ndarray | None,
+    callback: ProgressCallback | None,
+) -> Result:
+    params = params if params is not None else SolverParams()
+    if rotations is not None and "rotations" not in params.model_fields_set:
+        params = params.model_copy(update={"rotations": "known"})
+    report = _Reporter(callback, params.max_iter)
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+
+    report("validating")
+    W = check_measurements(W)
+    n_frames, n_points = W.shape[0] // 2, W.shape[1]
+    if params.rotations == "known":
+        if rotations is None:
+            raise MeasurementError(
+                "rotations='known' needs the camera rotations: pass rotations of shape "
+                f"({n_frames}, 2, 3), or choose rotations='intersection' to estimate them"
+            )
+        rotations = check_rotations(rotations, n_frames)
+    centred, scale = normalise(W)
+
+    report("rotations")
+    tic = time.perf_counter()
+    n_bases = params.n_bases
+    if params.rotations != "known":
+        if params.rotations == "intersection" and n_bases is None:
+            n_bases = choose_n_bases(centred)
+        rotations = estimate_rotations(centred, params.rotations, n_bases=n_bases, seed=params.seed)
+    timings["rotations"] = time.perf_counter() - tic
+
+    report("initialising")
+    tic = time.perf_counter()
+    tracks = centred.reshape(n_frames, 2, n_points)
+    initial = np.einsum("fji,fjp->fip", rotations, tracks).reshape(n_frames, 3 * n_points)
+    top = float(np.sqrt(max(np.linalg.eigvalsh(initial @ initial.T)[-1], 0.0)))
+    del initial  # (F, 3P): do not hold it through the loop
+    params = defaults.resolve(params, n_frames, n_points, top, rotations=rotations)
+    params = params.model_copy(update={"n_bases": n_bases})
+    _check_group_sizes(params, n_points)
+    _check_trajectory_bases(params, n_frames)
+    features = None
+    if params.method not in ("bmm", "pta") and params.n_groups > 1:
+        features = clustering.track_features(centred)
+    report.expected = defaults.expected_iterations(params)
+    timings["initialise"] = time.perf_counter() - tic
+
+    tic = time.perf_counter()
+
+    def hook(iteration: int, gap: float, rho: float) -> bool:
+        report("iterating", iteration, gap, rho)
+        return False
+
+    if params.method == "pta":
+        out = _trajectory_basis(tracks, rotations, params, hook)
+    else:
+        out = admm.run(tracks, rotations, params, features=features, hook=hook)
+    timings["iterate"] = time.perf_counter() - tic
+
+    report("finishing", out.n_iter)
+    shapes = out.shapes * scale
+    shapes -= shapes.mean(axis=2, keepdims=True)
+    timings["total"] = time.perf_counter() - start
+    return Result(
+        shapes=np.ascontiguousarray(shapes.transpose(0, 2, 1)),
+        rotations=rotations,
+        labels=out.labels,
+        history={
+            **out.history,
+            "reprojection": out.history["reprojection"] * scale,
+            "nuclear_norm": out.history["nuclear_norm"] * scale,
+        },
+        timings=timings,
+        params=params,
+        n_iter=out.n_iter,
+        stop_reason=out.stop_reason,
+        scale=scale,
+        extras={
+            "version": __version__,
+            "n_groups_used": out.extras["n_groups"],
+            **({"pta": out.extras["pta"]} if "pta" in out.extras else {}),
+        },
+    )
+
+
+def _trajectory_basis(
+    tracks: np.ndarray, rotations: np.ndarray, params: SolverParams, hook: admm.IterationHook
+) -> admm.LoopOutput:
+    """Method ``pta``: one closed-form solve, reported as a single converged iteration.
+
+    The :class:`Result` contract holds as for the iterative methods: labels are all 0 (no
+    local groups), ``history`` has one entry per key (gap 0: there is no split to close; rho 0:
+    no penalty; the reprojection error and nuclear norm of the solution; 0 relabelled) and the
+    stop reason is ``"converged"``.
+    """
+    n_frames, _, n_points = tracks.shape
+    shapes, diagnostics = pta.solve(tracks, rotations, params.trajectory_bases)
+    residual = camera.project(rotations, shapes) - tracks
+    nuclear = float(np.linalg.svd(shapes.reshape(n_frames, 3 * n_points), compute_uv=False).sum())
+    hook(1, 0.0, 0.0)
+    history = {
+        "gap": 0.0,
+        "gap_shape": 0.0,
+        "gap_coefficients": 0.0,
+        "rho": 0.0,
+        "reprojection": float(np.sqrt(np.mean(residual**2))),
+        "nuclear_norm": nuclear,
+        "relabelled": 0.0,
+    }
+    return admm.LoopOutput(
+        shapes=shapes,
+        labels=np.zeros(n_points, dtype=np.int64),
+        history={key: np.array([value]) for key, value in history.items()},
+        n_iter=1,
+        stop_reason="converged",
+        extras={"n_groups": 1, "pta": diagnostics},
+    )
+
+
+def _check_trajectory_bases(params: SolverParams, n_frames: int) -> None:
+    """Refuse a user-set PTA basis with more unknowns per point (3k) than equations (2F)."""
+    if params.method == "pta" and 3 * params.trajectory_bases > 2 * n_frames:
+        raise MeasurementError(
+            f"trajectory_bases={params.trajectory_bases} needs 3k <= 2F, i.e. at least "
+            f"{-(-3 * params.trajectory_bases // 2)} frames; the input has {n_frames}. Lower "
+            f"trajectory_bases (at most {2 * n_frames // 3}) or leave it unset"
+        )
+
+
+def _check_group_sizes(params: SolverParams, n_points: int) -> None:
+    """Refuse a user-set group count that the points cannot fill."""
+    if params.n_groups <= 1:
+        return
+    needed = params.n_groups * defaults.min_group_size(params.subspace_dim)
+    if needed > n_points:
+        raise MeasurementError(
+            f"n_groups={params.n_groups} needs at least {needed} points (groups of at least "
+            f"{defaults.min_group_size(params.subspace_dim)} for subspace_dim="
+            f"{params.subspace_dim}); the input has {n_points}. Lower n_groups or leave it "
+            "unset to derive it from the data"
+        )

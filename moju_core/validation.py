@@ -1,0 +1,404 @@
+"""Checks of everything a user hands to MoJu: tracks, rotations, ground truth, faces, colours.
+
+The library, the CLI, the HTTP API (uploads from strangers) and the worker all validate through
+these functions, so a bad input gets the same message everywhere. Every failure raises
+:class:`moju_core.errors.MeasurementError` whose message says what is wrong and how to fix it.
+Each ``check_*`` function returns the array converted to the dtype the rest of the code expects.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from moju_core.errors import MeasurementError
+
+__all__ = [
+    "W_to_tracks",
+    "check_colors",
+    "check_dtype",
+    "check_faces",
+    "check_ground_truth",
+    "check_measurements",
+    "check_rotations",
+    "estimate_memory_bytes",
+    "tracks_to_W",
+]
+
+#: Largest deviation of ``R_f R_f^T`` from the identity accepted by :func:`check_rotations`.
+ROTATION_TOLERANCE = 1e-6
+
+_KIND_NAMES = {
+    "b": "booleans",
+    "c": "complex numbers",
+    "f": "floating-point numbers",
+    "S": "byte strings",
+    "U": "strings",
+    "V": "compound or raw records",
+    "M": "dates",
+    "m": "time differences",
+}
+
+_W_LAYOUT = "rows 2f, 2f+1 are x, y of frame f"
+
+
+def _as_array(name: str, value: ArrayLike) -> np.ndarray:
+    """``np.asarray`` that turns numpy's complaint about ragged input into a clear error."""
+    try:
+        return np.asarray(value)
+    except (ValueError, TypeError) as exc:
+        raise MeasurementError(
+            f"{name} is not a rectangular array ({exc}); pass a numeric array in which every row "
+            "has the same length"
+        ) from exc
+
+
+def check_dtype(name: str, dtype: np.dtype | type | str, *, integer: bool = False) -> None:
+    """Refuse a dtype that is not a real number (or an integer when ``integer`` is set).
+
+    Used on arrays and on dtypes declared by file headers before any data is read.
+
+    Parameters
+    ----------
+    name : str
+        Name of the array, used in the message.
+    dtype : numpy dtype or anything ``np.dtype`` accepts
+        The dtype to check.
+    integer : bool, default False
+        Require an integer dtype (signed or unsigned) instead of any real dtype.
+
+    Raises
+    ------
+    MeasurementError
+        For object, string, boolean, complex, compound or date dtypes, and for floating dtypes
+        when ``integer`` is set.
+    """
+    dtype = np.dtype(dtype)
+    if dtype.hasobject:
+        raise MeasurementError(
+            f"{name} holds Python objects or variable-length data (dtype {dtype}); MoJu reads "
+            f"only plain rectangular numeric arrays (never pickles): store {name} as a float or "
+            "integer array"
+        )
+    allowed = "iu" if integer else "fiu"
+    if dtype.kind in allowed:
+        return
+    found = _KIND_NAMES.get(dtype.kind, "values of an unsupported type")
+    if integer and dtype.kind == "f":
+        hint = f"; if they are whole numbers convert them with {name}.astype(np.int64)"
+    else:
+        hint = ""
+    needed = "integers" if integer else "real numbers (float or integer)"
+    raise MeasurementError(f"{name} holds {found} (dtype {dtype}); it needs {needed}{hint}")
+
+
+def _first_non_finite(array: np.ndarray) -> tuple[int, int, tuple[int, ...]] | None:
+    """Count NaN and infinite entries and locate the first one in C order; None if all finite."""
+    finite = np.isfinite(array)
+    if finite.all():
+        return None
+    n_nan = int(np.count_nonzero(np.isnan(array)))
+    n_inf = int(array.size - np.count_nonzero(finite)) - n_nan
+    first = np.unravel_index(int(np.argmin(finite.ravel())), array.shape)
+    return n_nan, n_inf, tuple(int(i) for i in first)
+
+
+def check_measurements(W: ArrayLike, *, min_frames: int = 2, min_points: int = 3) -> np.ndarray:
+    """Check a measurement matrix and return it as C-contiguous float64.
+
+    Parameters
+    ----------
+    W : array_like of shape (2F, P)
+        Image coordinates in pixels (or any unit): rows ``2f`` and ``2f+1`` are the x and y
+        of frame ``f``, column ``j`` is point ``j``. Integer and float dtypes are accepted.
+    min_frames : int, default 2
+        Smallest number of frames F accepted.
+    min_points : int, default 3
+        Smallest number of points P accepted.
+
+    Returns
+    -------
+    W : ndarray of shape (2F, P), float64, C-contiguous
+        The input itself when it already has that layout, otherwise a converted copy.
+
+    Raises
+    ------
+    MeasurementError
+        When W is not 2-D, not real-valued, has an odd number of rows, too few frames or
+        points, or holds NaN or infinite values.
+    """
+    W = _as_array("W", W)
+    check_dtype("W", W.dtype)
+    if W.ndim != 2:
+        raise MeasurementError(
+            f"W has shape {W.shape} ({W.ndim}-D); it needs 2 dimensions, shape (2F, P) with "
+            f"{_W_LAYOUT}. Tracks of shape (F, P, 2) convert with tracks_to_W"
+        )
+    n_rows, n_points = W.shape
+    if n_rows % 2:
+        raise MeasurementError(
+            f"W has {n_rows} rows; it needs an even number ({_W_LAYOUT}). If W is stored "
+            "transposed (P x 2F), transpose it"
+        )
+    n_frames = n_rows // 2
+    if n_frames < min_frames:
+        raise MeasurementError(
+            f"W has {n_frames} frame(s) ({n_rows} rows); at least {min_frames} frames are "
+            "needed, because depth comes from seeing the object from several views"
+        )
+    if n_points < min_points:
+        raise MeasurementError(
+            f"W has {n_points} point(s) (columns); at least {min_points} are needed"
+        )
+    # A long double beyond float64's range becomes inf here, which the check below reports.
+    with np.errstate(over="ignore"):
+        W = np.ascontiguousarray(W, dtype=np.float64)
+    bad = _first_non_finite(W)
+    if bad is not None:
+        n_nan, n_inf, (row, column) = bad
+        coordinate = "xy"[row % 2]
+        raise MeasurementError(
+            f"W holds {n_nan} NaN and {n_inf} infinite value(s); the first is {coordinate} of "
+            f"frame {row // 2}, point {column} (row {row}, column {column}). Every point must be "
+            "tracked in every frame: drop the points that are missing in some frames"
+        )
+    return W
+
+
+def tracks_to_W(tracks: ArrayLike) -> np.ndarray:
+    """Stack per-frame tracks into the measurement matrix.
+
+    Only the layout is checked here; run :func:`check_measurements` on the result.
+
+    Parameters
+    ----------
+    tracks : array_like of shape (F, P, 2)
+        ``tracks[f, j]`` is the (x, y) image position of point ``j`` in frame ``f``.
+
+    Returns
+    -------
+    W : ndarray of shape (2F, P)
+        Rows ``2f`` and ``2f+1`` are x and y of frame ``f``; same dtype as ``tracks``.
+    """
+    tracks = _as_array("tracks", tracks)
+    if tracks.ndim != 3 or tracks.shape[2] != 2:
+        raise MeasurementError(
+            f"tracks has shape {tracks.shape}; it needs shape (F, P, 2): the (x, y) position of "
+            "every point in every frame"
+        )
+    n_frames, n_points, _ = tracks.shape
+    return tracks.transpose(0, 2, 1).reshape(2 * n_frames, n_points)
+
+
+def W_to_tracks(W: ArrayLike) -> np.ndarray:
+    """Inverse of :func:`tracks_to_W`.
+
+    Parameters
+    ----------
+    W : array_like of shape (2F, P)
+        Measurement matrix, rows ``2f`` and ``2f+1`` are x and y of frame ``f``.
+
+    Returns
+    -------
+    tracks : ndarray of shape (F, P, 2)
+        ``tracks[f, j]`` is the (x, y) position of point ``j`` in frame ``f``.
+    """
+    W = _as_array("W", W)
+    if W.ndim != 2 or W.shape[0] % 2:
+        raise MeasurementError(
+            f"W has shape {W.shape}; it needs shape (2F, P) with an even number of rows "
+            f"({_W_LAYOUT})"
+        )
+    n_rows, n_points = W.shape
+    return W.reshape(n_rows // 2, 2, n_points).transpose(0, 2, 1)
+
+
+def _check_finite(name: str, array: np.ndarray, what: str) -> None:
+    bad = _first_non_finite(array)
+    if bad is not None:
+        n_nan, n_inf, index = bad
+        raise MeasurementError(
+            f"{name} holds {n_nan} NaN and {n_inf} infinite value(s); the first is at index "
+            f"{index} ({what} {index[0]}); every value must be finite"
+        )
+
+
+def check_rotations(R: ArrayLike, n_frames: int) -> np.ndarray:
+    """Check per-frame camera rotations.
+
+    Parameters
+    ----------
+    R : array_like of shape (F, 2, 3)
+        ``R[f]`` is the orthographic camera of frame ``f``: two orthonormal rows.
+    n_frames : int
+        Number of frames F of the measurements.
+
+    Returns
+    -------
+    R : ndarray of shape (F, 2, 3), float64, C-contiguous
+
+    Raises
+    ------
+    MeasurementError
+        On a wrong shape or dtype, non-finite values, or a frame whose rows are not
+        orthonormal within ``ROTATION_TOLERANCE`` (max abs entry of ``R_f R_f^T - I``).
+    """
+    R = _as_array("R", R)
+    check_dtype("R", R.dtype)
+    if R.shape != (n_frames, 2, 3):
+        hint = ""
+        if R.shape == (2 * n_frames, 3):
+            hint = "; a stacked (2F, 3) matrix converts with R.reshape(-1, 2, 3)"
+        raise MeasurementError(
+            f"R has shape {R.shape}; it needs ({n_frames}, 2, 3): one 2x3 camera rotation with "
+            f"orthonormal rows per frame{hint}"
+        )
+    R = np.ascontiguousarray(R, dtype=np.float64)
+    _check_finite("R", R, "frame")
+    deviation = np.abs(R @ R.transpose(0, 2, 1) - np.eye(2)).max(axis=(1, 2))
+    failing = np.flatnonzero(deviation > ROTATION_TOLERANCE)
+    if failing.size:
+        frame = int(failing[0])
+        raise MeasurementError(
+            f"R of frame {frame} does not have orthonormal rows: max |R_f R_f^T - I| = "
+            f"{deviation[frame]:.3g} (tolerance {ROTATION_TOLERANCE:g}); {failing.size} frame(s) "
+            "fail. Orthonormalise each 2x3 block, e.g. U @ Vt from its SVD"
+        )
+    return R
+
+
+def check_ground_truth(gt: ArrayLike, n_frames: int, n_points: int) -> np.ndarray:
+    """Check ground-truth 3D shapes.
+
+    Parameters
+    ----------
+    gt : array_like of shape (F, P, 3)
+        ``gt[f, j]`` is the 3D position of point ``j`` in frame ``f`` (same units as W).
+    n_frames, n_points : int
+        F and P of the measurements.
+
+    Returns
+    -------
+    gt : ndarray of shape (F, P, 3), float64, C-contiguous
+    """
+    gt = _as_array("gt", gt)
+    check_dtype("gt", gt.dtype)
+    if gt.shape != (n_frames, n_points, 3):
+        hint = ""
+        if gt.shape == (3 * n_frames, n_points):
+            hint = "; a stacked (3F, P) matrix converts with gt.reshape(F, 3, P).transpose(0, 2, 1)"
+        raise MeasurementError(
+            f"gt has shape {gt.shape}; it needs ({n_frames}, {n_points}, 3): the 3D position of "
+            f"every point in every frame{hint}"
+        )
+    gt = np.ascontiguousarray(gt, dtype=np.float64)
+    _check_finite("gt", gt, "frame")
+    return gt
+
+
+def check_faces(faces: ArrayLike, n_points: int) -> np.ndarray:
+    """Check triangle indices into the points.
+
+    Parameters
+    ----------
+    faces : array_like of shape (M, 3), integer
+        Each row holds the indices (0-based) of the three points of one triangle.
+    n_points : int
+        Number of points P.
+
+    Returns
+    -------
+    faces : ndarray of shape (M, 3), int64, C-contiguous
+    """
+    faces = _as_array("faces", faces)
+    check_dtype("faces", faces.dtype, integer=True)
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise MeasurementError(
+            f"faces has shape {faces.shape}; it needs shape (M, 3): three point indices per "
+            "triangle"
+        )
+    # uint64 values above 2**63 would wrap in int64; compare in the input dtype first.
+    if faces.size and (faces.min() < 0 or faces.max() >= n_points):
+        outside = (faces < 0) | (faces >= n_points)
+        face = int(np.flatnonzero(outside.any(axis=1))[0])
+        hint = ""
+        if faces.min() >= 1 and faces.max() == n_points:
+            hint = "; the indices look 1-based, subtract 1"
+        raise MeasurementError(
+            f"faces holds point indices outside 0..{n_points - 1} (P = {n_points}); the first "
+            f"is triangle {face}: {faces[face].tolist()}{hint}"
+        )
+    return np.ascontiguousarray(faces, dtype=np.int64)
+
+
+def check_colors(colors: ArrayLike, n_points: int) -> np.ndarray:
+    """Check per-point colours.
+
+    Parameters
+    ----------
+    colors : array_like of shape (P, 3) or (P, 4), integer
+        RGB (or RGBA) of every point, each channel in 0..255.
+    n_points : int
+        Number of points P.
+
+    Returns
+    -------
+    colors : ndarray of shape (P, 3) or (P, 4), uint8, C-contiguous
+    """
+    colors = _as_array("colors", colors)
+    if colors.dtype.kind == "f":
+        raise MeasurementError(
+            f"colors holds floating-point numbers (dtype {colors.dtype}); it needs integers in "
+            "0..255. Colours in 0..1 convert with np.round(colors * 255).astype(np.uint8)"
+        )
+    check_dtype("colors", colors.dtype, integer=True)
+    if colors.ndim != 2 or colors.shape[0] != n_points or colors.shape[1] not in (3, 4):
+        raise MeasurementError(
+            f"colors has shape {colors.shape}; it needs ({n_points}, 3) (RGB) or "
+            f"({n_points}, 4) (RGBA): one colour per point"
+        )
+    if colors.size and (colors.min() < 0 or colors.max() > 255):
+        raise MeasurementError(
+            f"colors holds values from {colors.min()} to {colors.max()}; every channel must be "
+            "in 0..255"
+        )
+    return np.ascontiguousarray(colors, dtype=np.uint8)
+
+
+#: Bytes of float64 the solver keeps per (frame, point) pair; see :func:`estimate_memory_bytes`.
+_SOLVER_BYTES_PER_FRAME_POINT = (8 * 3 + 4 * 2) * 8
+#: Interpreter, numpy/scipy/scikit-learn and the small per-group matrices.
+_SOLVER_BASE_BYTES = 128 * 2**20
+
+
+def estimate_memory_bytes(n_frames: int, n_points: int) -> int:
+    """Rough peak memory of one reconstruction of F frames and P points, in bytes.
+
+    The ADMM loop keeps about eight arrays of shape (3F, P) in float64 alive at once (the
+    trajectories S, the shape matrix S#, the multiplier L1, the local reconstruction, the
+    S-update's right-hand side and the temporaries of the SVT and of the regrouping), plus
+    about four of shape (2F, P) (the input W, its centred and scaled copy, the reprojection and
+    its residual). That is ``(8 * 3 + 4 * 2) * 8 = 256`` bytes per (frame, point) pair. The
+    per-group matrices (3F x p) and the K_g x K_g graph are small next to these; a fixed
+    128 MiB covers them and the interpreter with its numerical libraries.
+
+    The estimate is meant for admission control (refusing a job that cannot fit), not for
+    accounting; it errs on the high side.
+
+    Parameters
+    ----------
+    n_frames : int
+        Number of frames F (>= 0).
+    n_points : int
+        Number of points P (>= 0).
+
+    Returns
+    -------
+    int
+        ``256 * F * P + 128 MiB``.
+    """
+    if n_frames < 0 or n_points < 0:
+        raise ValueError(
+            f"n_frames and n_points must be >= 0, got n_frames={n_frames}, n_points={n_points}"
+        )
+    return _SOLVER_BYTES_PER_FRAME_POINT * int(n_frames) * int(n_points) + _SOLVER_BASE_BYTES

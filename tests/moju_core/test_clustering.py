@@ -1,0 +1,76 @@
+"""Initial groups, the neighbour graph, spectral clustering and regrouping."""
+
+import numpy as np
+from numpy.testing import assert_array_equal
+
+from moju_core import clustering
+
+
+def test_initial_labels_respect_the_minimum_size():
+    rng = np.random.default_rng(0)
+    features = np.concatenate([rng.normal(0, 1, (200, 3)), rng.normal(20, 0.1, (3, 3))])
+    labels = clustering.initial_labels(features, n_groups=8, min_size=10, seed=0)
+    sizes = np.bincount(labels)
+    assert sizes.min() >= 10
+    assert_array_equal(np.unique(labels), np.arange(len(sizes)))
+
+
+def test_neighbour_edges_are_symmetric_nearest_neighbours():
+    centroids = np.array([[0.0], [1.0], [2.5], [10.0], [11.0]])
+    edges = clustering.neighbour_edges(centroids, 1)
+    # 0->1, 1->0, 2->1, 3->4, 4->3, as undirected pairs i < j
+    assert {tuple(e) for e in edges} == {(0, 1), (1, 2), (3, 4)}
+
+
+def test_similarity_graph_is_one_for_equal_subspaces_and_small_for_orthogonal():
+    eye = np.eye(6)
+    bases = np.stack([eye[:, :2], eye[:, :2], eye[:, 2:4]])
+    weights = clustering.similarity_graph(bases, np.array([[0, 1], [0, 2]]))
+    assert weights[0, 1] == weights[1, 0] == 1.0
+    assert np.isclose(weights[0, 2], np.exp(-2.0))
+    assert weights[1, 2] == 0.0
+
+
+def test_cluster_groups_separates_block_diagonal_coefficients():
+    c = np.zeros((6, 6))
+    c[:3, :3] = 1.0
+    c[3:, 3:] = 1.0
+    labels = clustering.cluster_groups(c + 0.01, 2, seed=0)
+    assert len(set(labels[:3])) == 1 and len(set(labels[3:])) == 1
+    assert labels[0] != labels[3]
+
+
+def _two_subspace_data(rng, n=12, per_group=30):
+    eye = np.eye(n)
+    bases = np.stack([eye[:, :2], eye[:, 2:4]])
+    columns = [bases[i] @ rng.standard_normal((2, per_group)) for i in range(2)]
+    return bases, np.concatenate(columns, axis=1)
+
+
+def test_regroup_moves_misassigned_trajectories_to_their_subspace():
+    rng = np.random.default_rng(1)
+    bases, trajectories = _two_subspace_data(rng)
+    truth = np.repeat([0, 1], 30)
+    labels = truth.copy()
+    labels[:5] = 1  # five trajectories of subspace 0 sit in group 1
+    new = clustering.regroup(trajectories, labels, bases, np.array([0, 0]), min_size=4)
+    assert_array_equal(new, truth)
+
+
+def test_regroup_only_moves_within_a_cluster():
+    rng = np.random.default_rng(2)
+    bases, trajectories = _two_subspace_data(rng)
+    labels = np.repeat([0, 1], 30)
+    labels[:5] = 1
+    new = clustering.regroup(trajectories, labels, bases, np.array([0, 1]), min_size=4)
+    assert_array_equal(new, labels)
+
+
+def test_regroup_never_leaves_a_group_below_the_minimum_size():
+    rng = np.random.default_rng(3)
+    bases, trajectories = _two_subspace_data(rng)
+    labels = np.repeat([0, 1], 30)
+    labels[:25] = 1  # 25 of group 0's trajectories wrongly in group 1; group 0 holds 5
+    labels[30:] = 0  # and all of group 1's in group 0
+    new = clustering.regroup(trajectories, labels, bases, np.array([0, 0]), min_size=20)
+    assert np.bincount(new, minlength=2).min() >= 20

@@ -1,0 +1,72 @@
+"""Singular value thresholding and the LRR coefficient step."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from moju_core.lrr import coefficient_step, singular_value_threshold
+
+
+def _prox_objective(y, x, tau):
+    return tau * np.linalg.svd(y, compute_uv=False).sum() + 0.5 * np.linalg.norm(y - x) ** 2
+
+
+@pytest.mark.parametrize("shape", [(6, 40), (15, 15), (40, 6)])  # Gram route and full SVD
+def test_svt_matches_shrunk_svd(shape):
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal(shape)
+    tau = 1.5
+    y, nuclear = singular_value_threshold(x, tau)
+    u, s, vt = np.linalg.svd(x, full_matrices=False)
+    shrunk = np.clip(s - tau, 0, None)
+    assert_allclose(y, (u * shrunk) @ vt, atol=1e-10)
+    assert nuclear == pytest.approx(shrunk.sum(), rel=1e-10)
+
+
+@pytest.mark.parametrize("shape", [(5, 30), (12, 12)])
+def test_svt_is_the_proximal_operator_of_the_nuclear_norm(shape):
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal(shape)
+    tau = 0.8
+    y, _ = singular_value_threshold(x, tau)
+    best = _prox_objective(y, x, tau)
+    for _ in range(200):
+        perturbed = y + 1e-2 * rng.standard_normal(shape)
+        assert _prox_objective(perturbed, x, tau) >= best - 1e-12
+    # Optimality: (x - y) / tau is a subgradient of the nuclear norm at y (spectral norm <= 1).
+    assert np.linalg.norm((x - y) / tau, 2) <= 1 + 1e-9
+
+
+def test_svt_with_zero_threshold_is_identity_and_large_threshold_is_zero():
+    x = np.random.default_rng(2).standard_normal((4, 25))
+    assert_allclose(singular_value_threshold(x, 0.0)[0], x, atol=1e-10)
+    assert_allclose(singular_value_threshold(x, 1e6)[0], 0.0)
+
+
+def test_coefficient_step_satisfies_its_optimality_condition():
+    rng = np.random.default_rng(3)
+    a = rng.standard_normal((8, 5))
+    gamma = a @ a.T  # a PSD kernel, rank deficient on purpose
+    z = rng.standard_normal((8, 8))
+    multiplier = rng.standard_normal((8, 8))
+    beta1, rho = 0.7, 0.3
+    c = coefficient_step(gamma, z, multiplier, beta1, rho)
+    # Gradient of beta1 (tr G - 2 tr(G C) + tr(C^T G C)) + <L2, C - Z> + rho/2 ||C - Z||^2.
+    gradient = beta1 * (-2 * gamma + 2 * gamma @ c) + multiplier + rho * (c - z)
+    assert_allclose(gradient, 0.0, atol=1e-10)
+
+
+def test_coefficient_step_minimises_the_augmented_objective():
+    rng = np.random.default_rng(4)
+    a = rng.standard_normal((6, 6))
+    gamma = a @ a.T
+    z, multiplier = rng.standard_normal((2, 6, 6))
+    beta1, rho = 2.0, 0.5
+
+    def objective(c):
+        lrr = np.trace(gamma) - 2 * np.trace(gamma @ c) + np.trace(c.T @ gamma @ c)
+        return beta1 * lrr + np.sum(multiplier * (c - z)) + rho / 2 * np.linalg.norm(c - z) ** 2
+
+    c = coefficient_step(gamma, z, multiplier, beta1, rho)
+    for _ in range(100):
+        assert objective(c + 1e-3 * rng.standard_normal(c.shape)) > objective(c)

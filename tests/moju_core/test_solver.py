@@ -1,0 +1,138 @@
+"""End-to-end behaviour of reconstruct(): accuracy on small sequences, progress, control, errors."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+
+from moju_core import Cancelled, MeasurementError, SolverParams, reconstruct
+from moju_core.datasets import make_sequence
+from moju_core.metrics import e3d
+
+
+@pytest.fixture(scope="module")
+def face():
+    return make_sequence("face1", n_points=600)
+
+
+@pytest.mark.parametrize(
+    ("method", "rotations", "limit"),
+    [
+        ("moju", "known", 0.05),
+        ("moju", "intersection", 0.08),
+        ("sdg", "known", 0.05),
+        ("bmm", "known", 0.05),
+    ],
+)
+def test_reconstructs_a_small_face_sequence(face, method, rotations, limit):
+    params = SolverParams(method=method, rotations=rotations)
+    result = reconstruct(face.W, params, rotations=face.rotations if rotations == "known" else None)
+    assert result.shapes.shape == (10, 600, 3)
+    assert result.rotations.shape == (10, 2, 3)
+    assert e3d(result.shapes, face.shapes) < limit
+    # Far better than the depthless initialisation S = pinv(R) W.
+    depthless = np.einsum("fji,fjp->fpi", face.rotations, face.W.reshape(10, 2, -1))
+    assert e3d(result.shapes, face.shapes) < 0.5 * e3d(depthless, face.shapes)
+    assert result.stop_reason in ("converged", "rho_max")
+    # Shapes are in the input's units: they reproject onto the tracks.
+    centred = face.W - face.W.mean(axis=1, keepdims=True)
+    reprojected = np.einsum("fij,fpj->fip", result.rotations, result.shapes).reshape(20, -1)
+    assert np.sqrt(np.mean((reprojected - centred) ** 2)) < 1e-2 * np.sqrt(np.mean(centred**2))
+
+
+def test_moju_beats_the_nuclear_norm_alone_under_noise():
+    noisy = make_sequence("face1", n_points=1500, noise=0.03)
+    errors = {
+        method: e3d(
+            reconstruct(
+                noisy.W, SolverParams(method=method, rotations="known"), rotations=noisy.rotations
+            ).shapes,
+            noisy.shapes,
+        )
+        for method in ("moju", "bmm")
+    }
+    assert errors["moju"] < 0.9 * errors["bmm"]
+
+
+def test_is_deterministic_for_a_seed(face):
+    params = SolverParams(rotations="known", seed=3, max_iter=30)
+    first = reconstruct(face.W, params, rotations=face.rotations)
+    second = reconstruct(face.W, params, rotations=face.rotations)
+    assert_array_equal(first.shapes, second.shapes)
+    assert_array_equal(first.labels, second.labels)
+
+
+def test_reports_progress_and_resolves_defaults(face):
+    reports = []
+    result = reconstruct(face.W, rotations=face.rotations, callback=reports.append)
+    stages = [r.stage for r in reports]
+    assert stages[:3] == ["validating", "rotations", "initialising"]
+    assert stages[-1] == "finishing"
+    iterations = [r.iteration for r in reports if r.stage == "iterating"]
+    assert iterations == list(range(1, result.n_iter + 1))
+    fractions = [r.fraction for r in reports]
+    assert fractions == sorted(fractions) and 0 <= fractions[0] and fractions[-1] <= 1
+    assert all(r.eta is not None and r.eta >= 0 for r in reports if r.stage == "iterating")
+    assert result.params.rotations == "known"
+    for name in ("n_groups", "subspace_dim", "low_dim", "n_clusters", "beta1", "beta2", "beta3"):
+        assert getattr(result.params, name) is not None
+    assert len(result.history["gap"]) == result.n_iter
+    assert set(result.timings) >= {"rotations", "initialise", "iterate", "total"}
+
+
+def test_callback_can_cancel(face):
+    def stop_at_fifth(progress):
+        return progress.stage == "iterating" and progress.iteration == 5
+
+    with pytest.raises(Cancelled):
+        reconstruct(face.W, rotations=face.rotations, callback=stop_at_fifth)
+
+
+def test_sparse_input_falls_back_to_the_nuclear_norm():
+    markers = make_sequence("face3", n_points=40)
+    result = reconstruct(markers.W, rotations=markers.rotations)
+    assert result.params.n_groups == 1
+    assert e3d(result.shapes, markers.shapes) < 0.05
+
+
+def test_output_is_independent_of_pixel_units_and_translation(face):
+    # bmm: the continuous part of the loop. With local groups the discrete clustering turns
+    # round-off differences into (equally good) different groupings, so moju is compared on
+    # accuracy only.
+    params = SolverParams(method="bmm", rotations="known", max_iter=40)
+    base = reconstruct(face.W, params, rotations=face.rotations)
+    scaled = reconstruct(250.0 * face.W + 17.0, params, rotations=face.rotations)
+    np.testing.assert_allclose(scaled.shapes, 250.0 * base.shapes, rtol=1e-6, atol=1e-6)
+    moju = SolverParams(rotations="known")
+    errors = [
+        e3d(reconstruct(w, moju, rotations=face.rotations).shapes, face.shapes * k)
+        for w, k in ((face.W, 1.0), (250.0 * face.W + 17.0, 250.0))
+    ]
+    assert abs(errors[0] - errors[1]) < 0.005
+
+
+def test_known_rotations_are_required_when_asked_for(face):
+    with pytest.raises(MeasurementError, match="rotations of shape \\(10, 2, 3\\)"):
+        reconstruct(face.W, SolverParams(rotations="known"))
+
+
+def test_refuses_more_groups_than_the_points_can_fill(face):
+    with pytest.raises(MeasurementError, match="n_groups=500 needs at least"):
+        reconstruct(face.W, SolverParams(n_groups=500), rotations=face.rotations)
+
+
+@pytest.mark.parametrize(
+    ("W", "message"),
+    [
+        (np.zeros((7, 20)), "even number"),
+        (np.zeros((2, 20)), "at least 2 frames"),
+        (np.full((6, 20), np.nan), "NaN"),
+    ],
+)
+def test_rejects_malformed_measurements(W, message):
+    with pytest.raises(MeasurementError, match=message):
+        reconstruct(W)
+
+
+def test_unknown_parameters_are_rejected():
+    with pytest.raises(ValueError, match="n_grups"):
+        SolverParams(n_grups=3)
