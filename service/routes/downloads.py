@@ -1,0 +1,244 @@
+"""Routes that hand out a finished job's outputs: result file, PLY frames, metrics."""
+
+from __future__ import annotations
+
+import zipfile
+from collections.abc import Iterator
+from typing import Annotated, Literal
+from uuid import UUID
+
+from fastapi import APIRouter, Depends, Path, Query
+from fastapi.responses import FileResponse, Response, StreamingResponse
+
+from moju_core.metrics import evaluate
+from moju_core.ply import frame_file_name, ply_bytes
+from service.deps import Caller, JobId, Services, ServicesDep, get_caller
+from service.errors import FrameOutOfRange, JobNotFinished, NoGroundTruth
+from service.routes.jobs import UNAUTHORIZED, load_record
+from service.schemas import ErrorBody, JobRecord, Metrics
+from service.states import JobStatus
+from service.storage import JobFilesMissing
+
+router = APIRouter(
+    prefix="/v1/jobs",
+    tags=["downloads"],
+    dependencies=[Depends(get_caller)],
+    responses=UNAUTHORIZED,
+)
+
+_EXAMPLE = "http://127.0.0.1:8000/v1/jobs/0b7e9f6c-3a51-4f0e-9d7c-2c1e8a4b5d60"
+_ERRORS = {
+    404: {"model": ErrorBody, "description": "No such job (or no such frame)."},
+    409: {"model": ErrorBody, "description": "The job has not finished, so there is no result."},
+}
+_MEDIA_TYPES = {"h5": "application/x-hdf5", "npz": "application/octet-stream"}
+
+
+def finished_record(services: Services, job_id: UUID, owner: str) -> JobRecord:
+    """The caller's finished job; 404 when unknown, 409 with the reason when unfinished."""
+    record = load_record(services, job_id, owner)
+    if record.status is JobStatus.FINISHED:
+        return record
+    if record.status is JobStatus.FAILED:
+        raise JobNotFinished(f"job {job_id} failed, so it has no result: {record.error}")
+    if record.status is JobStatus.CANCELLED:
+        raise JobNotFinished(f"job {job_id} was cancelled, so it has no result")
+    where = ""
+    if record.progress is not None and record.status is JobStatus.RUNNING:
+        where = f", at iteration {record.progress.iteration} of {record.progress.max_iter}"
+    raise JobNotFinished(
+        f"job {job_id} is {record.status.value}{where}; its result is not ready yet: wait "
+        f"until its status is 'finished' (GET /v1/jobs/{job_id} or /v1/jobs/{job_id}/events)"
+    )
+
+
+@router.get(
+    "/{job_id}/result",
+    operation_id="download_result",
+    summary="Download the result (HDF5 or npz)",
+    description=(
+        "shapes (F x P x 3), rotations (F x 2 x 3), labels (P), the convergence history, the "
+        "resolved parameters, timings and metadata, in the layout of "
+        "`moju_core.io.write_result` (readable with `moju_core.io.read_result`).\n\n"
+        f"    curl -o result.npz '{_EXAMPLE}/result?format=npz'"
+    ),
+    response_class=FileResponse,
+    responses={
+        200: {
+            "description": "The result file.",
+            "content": {
+                "application/x-hdf5": {"schema": {"type": "string", "format": "binary"}},
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+            },
+        },
+        **_ERRORS,
+    },
+)
+def download_result(
+    job_id: JobId,
+    services: ServicesDep,
+    caller: Caller,
+    format: Annotated[
+        Literal["h5", "npz"], Query(description="File format: h5 (HDF5) or npz.")
+    ] = "h5",
+) -> FileResponse:
+    """The result file in the requested format."""
+    finished_record(services, job_id, caller)
+    path = services.storage.result_file(job_id, format)
+    return FileResponse(path, media_type=_MEDIA_TYPES[format], filename=f"moju-{job_id}.{format}")
+
+
+def _frame_ply(services: Services, job_id: UUID, frame: int) -> bytes:
+    faces, colors = services.storage.mesh_attributes(job_id)
+    with services.storage.result_frames(job_id) as frames:
+        if frame >= frames.n_frames:
+            raise FrameOutOfRange(
+                f"job {job_id} has {frames.n_frames} frames (0..{frames.n_frames - 1}); there "
+                f"is no frame {frame}"
+            )
+        return ply_bytes(frames.frame(frame), faces=faces, colors=colors)
+
+
+@router.get(
+    "/{job_id}/frames/{frame}.ply",
+    operation_id="download_frame_ply",
+    summary="Download one frame as PLY",
+    description=(
+        "Binary PLY of frame `frame` (0-based): P vertices (x, y, z as float32, plus colours "
+        "and triangles when they were uploaded).\n\n"
+        f"    curl -o frame_0000.ply {_EXAMPLE}/frames/0.ply"
+    ),
+    response_class=Response,
+    responses={
+        200: {
+            "description": "The PLY file.",
+            "content": {"application/x-ply": {"schema": {"type": "string", "format": "binary"}}},
+        },
+        **_ERRORS,
+    },
+)
+def download_frame_ply(
+    job_id: JobId,
+    services: ServicesDep,
+    caller: Caller,
+    frame: Annotated[int, Path(ge=0, description="Frame number, 0-based.", examples=[0])],
+) -> Response:
+    """One frame's reconstructed shape as PLY."""
+    record = finished_record(services, job_id, caller)
+    data = _frame_ply(services, job_id, frame)
+    name = frame_file_name(frame, record.input.frames)
+    return Response(
+        data,
+        media_type="application/x-ply",
+        headers={"Content-Disposition": f'attachment; filename="{name}"'},
+    )
+
+
+class _ZipSink:
+    """A write-only file for :class:`zipfile.ZipFile` whose bytes are taken out as they come.
+
+    zipfile writes a stream it cannot seek with data descriptors, so the archive can be sent
+    while it is being built, one frame in memory at a time.
+    """
+
+    def __init__(self) -> None:
+        self._chunks: list[bytes] = []
+
+    def write(self, data: bytes) -> int:
+        self._chunks.append(bytes(data))
+        return len(data)
+
+    def flush(self) -> None:
+        """Nothing to flush: bytes are kept until :meth:`take`."""
+
+    def take(self) -> bytes:
+        data = b"".join(self._chunks)
+        self._chunks.clear()
+        return data
+
+
+def _zip_frames(services: Services, job_id: UUID) -> Iterator[bytes]:
+    faces, colors = services.storage.mesh_attributes(job_id)
+    sink = _ZipSink()
+    with services.storage.result_frames(job_id) as frames:
+        # PLY floats barely compress; level 1 keeps the server's CPU for the solver.
+        with zipfile.ZipFile(sink, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
+            for frame in range(frames.n_frames):
+                data = ply_bytes(frames.frame(frame), faces=faces, colors=colors)
+                archive.writestr(frame_file_name(frame, frames.n_frames), data)
+                yield sink.take()
+    yield sink.take()
+
+
+@router.get(
+    "/{job_id}/frames.zip",
+    operation_id="download_frames_zip",
+    summary="Download every frame as PLY, in a zip",
+    description=(
+        "A zip archive with one binary PLY per frame (`frame_0000.ply`, ...), built while it "
+        "is sent (nothing is stored).\n\n"
+        f"    curl -o frames.zip {_EXAMPLE}/frames.zip"
+    ),
+    response_class=StreamingResponse,
+    responses={
+        200: {
+            "description": "The zip archive.",
+            "content": {"application/zip": {"schema": {"type": "string", "format": "binary"}}},
+        },
+        **_ERRORS,
+    },
+)
+def download_frames_zip(job_id: JobId, services: ServicesDep, caller: Caller) -> StreamingResponse:
+    """All frames as PLY files in a streamed zip."""
+    finished_record(services, job_id, caller)
+    # Checked now so that a missing result is a 404, not a stream broken after its headers.
+    if not services.storage.has_result(job_id):
+        raise JobFilesMissing(job_id)
+    return StreamingResponse(
+        _zip_frames(services, job_id),
+        media_type="application/zip",
+        headers={"Content-Disposition": f'attachment; filename="moju-{job_id}-frames.zip"'},
+    )
+
+
+def _compute_metrics(services: Services, job_id: UUID) -> dict[str, float]:
+    measurements = services.storage.read_input(job_id)
+    result = services.storage.read_result(job_id)
+    rotations_true = measurements.rotations
+    scores = evaluate(
+        result.shapes,
+        measurements.ground_truth,
+        R_est=result.rotations if rotations_true is not None else None,
+        R_true=rotations_true,
+    )
+    return {name: float(value) for name, value in scores.items()}
+
+
+@router.get(
+    "/{job_id}/metrics",
+    operation_id="get_job_metrics",
+    summary="Accuracy against the uploaded ground truth",
+    description=(
+        "e3D (relative 3D error, the paper's Eq. 17) after per-frame Procrustes, global and "
+        "sign-only alignment, and the mean rotation error in degrees when true rotations "
+        "were uploaded. Only for jobs whose input held ground truth `gt` (404 otherwise). "
+        "Computed on the first request and cached.\n\n"
+        f"    curl {_EXAMPLE}/metrics"
+    ),
+    response_model=Metrics,
+    responses=_ERRORS,
+)
+def get_job_metrics(job_id: JobId, services: ServicesDep, caller: Caller) -> Metrics:
+    """Accuracy figures of a finished job."""
+    record = load_record(services, job_id, caller)
+    if not record.input.has_ground_truth:
+        raise NoGroundTruth(
+            f"job {job_id} was submitted without ground truth, so there is nothing to compare "
+            "with: include gt (F x P x 3) in the input file to get metrics"
+        )
+    finished_record(services, job_id, caller)
+    cached = services.storage.read_metrics(job_id)
+    if cached is None:
+        cached = _compute_metrics(services, job_id)
+        services.storage.write_metrics(job_id, cached)
+    return Metrics(**cached)

@@ -1,0 +1,236 @@
+"""Pydantic models of the HTTP API: the job resource, its parts, the job list, request bodies.
+
+Solver parameters are :class:`moju_core.params.SolverParams` itself, never a copy, so the API,
+the worker and the CLI accept exactly the same parameters.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+from typing import Literal
+from uuid import UUID
+
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator
+
+from moju_core.params import SolverParams
+from service.states import JobStatus
+
+_EXAMPLE_ID = "0b7e9f6c-3a51-4f0e-9d7c-2c1e8a4b5d60"
+
+
+class InputSummary(BaseModel):
+    """What the API found in the upload, after validation."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    frames: int = Field(description="Number of frames F.", examples=[10])
+    points: int = Field(description="Number of tracked points P.", examples=[2000])
+    format: Literal["npz", "h5", "csv", "json"] = Field(
+        description="How the measurements were sent.", examples=["npz"]
+    )
+    filename: str | None = Field(
+        None,
+        max_length=255,
+        description="Name of the uploaded file as the client gave it (display only).",
+        examples=["face_small.npz"],
+    )
+    size_bytes: int = Field(
+        description="Size of the uploaded file (or of the JSON body) in bytes.", examples=[331_000]
+    )
+    has_rotations: bool = Field(description="The input carries camera rotations R.")
+    has_ground_truth: bool = Field(
+        description="The input carries ground-truth shapes gt (enables the metrics endpoint)."
+    )
+    has_faces: bool = Field(description="The input carries triangles (exported in PLY files).")
+    has_colors: bool = Field(description="The input carries per-point colours.")
+
+
+class ProgressReport(BaseModel):
+    """Latest progress a worker reported (throttled to about two reports a second)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    stage: str = Field(
+        description=("One of validating, rotations, initialising, iterating, finishing, finished."),
+        examples=["iterating"],
+    )
+    iteration: int = Field(description="ADMM iterations done so far.", examples=[42])
+    max_iter: int = Field(description="Iteration cap (params.max_iter).", examples=[300])
+    gap: float | None = Field(
+        None, description="Primal gap of the last iteration; null before the loop starts."
+    )
+    rho: float | None = Field(None, description="Current ADMM penalty parameter.")
+    fraction: float = Field(
+        ge=0.0, le=1.0, description="Estimated fraction of the work done.", examples=[0.4]
+    )
+    elapsed: float = Field(description="Seconds since the solver started.", examples=[1.8])
+    eta: float | None = Field(None, description="Estimated seconds left; null when unknown.")
+
+    @field_validator("gap", "rho", "eta", mode="before")
+    @classmethod
+    def _nan_to_none(cls, value: float | None) -> float | None:
+        # JSON has no NaN; the solver reports gap = nan before the first iteration.
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        return value
+
+
+class ResultSummary(BaseModel):
+    """Outcome of a finished reconstruction (the arrays are in the result download)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    n_iter: int = Field(description="ADMM iterations run.", examples=[120])
+    stop_reason: str = Field(description="converged, rho_max or max_iter.", examples=["converged"])
+    timings: dict[str, float] = Field(
+        description="Seconds per solver stage.", examples=[{"total": 1.2}]
+    )
+    resolved_parameters: SolverParams = Field(
+        description="Parameters actually used, with every data-derived default filled in."
+    )
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="Warnings of the solver, e.g. a fallback it took.",
+        examples=[[]],
+    )
+
+
+class JobRecord(BaseModel):
+    """A job as stored in Redis: everything of the job resource except its links."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    id: UUID = Field(description="Job id (UUID4).", examples=[_EXAMPLE_ID])
+    status: JobStatus = Field(description="Lifecycle state.", examples=["running"])
+    created_at: datetime = Field(description="When the API accepted the job (UTC).")
+    started_at: datetime | None = Field(None, description="When a worker started it (UTC).")
+    ended_at: datetime | None = Field(
+        None, description="When it finished, failed or was cancelled (UTC)."
+    )
+    parameters: SolverParams = Field(description="Solver parameters as submitted.")
+    input: InputSummary = Field(description="Summary of the validated input.")
+    progress: ProgressReport | None = Field(
+        None, description="Latest progress; null until a worker reports."
+    )
+    error: str | None = Field(
+        None, description="For failed jobs: what went wrong and what to do about it."
+    )
+    result: ResultSummary | None = Field(None, description="For finished jobs: the outcome.")
+    attempts: int = Field(
+        0,
+        ge=0,
+        description=(
+            "How many times a worker started the job: 0 while it waits for the first start, "
+            "2 or more when it was started again because its worker was lost."
+        ),
+        examples=[1],
+    )
+
+    # The owner id of the API key that submitted the job (service.auth; "" without keys). Not
+    # a field: it is never shown in the job resource.
+    _owner: str = PrivateAttr(default="")
+
+    @property
+    def owner(self) -> str:
+        """Owner id of the submitting API key ("" when the server has no keys)."""
+        return self._owner
+
+    def owned_by(self, owner: str) -> JobRecord:
+        """This record with its owner set (returns self, for chaining)."""
+        self._owner = owner
+        return self
+
+
+class JobLinks(BaseModel):
+    """Where to find the job's other resources."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    self: str = Field(examples=[f"/v1/jobs/{_EXAMPLE_ID}"])
+    events: str = Field(examples=[f"/v1/jobs/{_EXAMPLE_ID}/events"])
+    result: str = Field(examples=[f"/v1/jobs/{_EXAMPLE_ID}/result?format=h5"])
+    frames_zip: str = Field(examples=[f"/v1/jobs/{_EXAMPLE_ID}/frames.zip"])
+    metrics: str | None = Field(
+        None, description="Present when ground truth was uploaded.", examples=[None]
+    )
+
+
+class JobResource(JobRecord):
+    """The job resource returned by every job endpoint."""
+
+    links: JobLinks
+
+
+class JobList(BaseModel):
+    """One page of jobs, newest first, with offset pagination."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    pagination: Literal["offset"] = Field(
+        "offset", description="Pagination scheme: pass `offset` and `limit` to page."
+    )
+    items: list[JobResource]
+    total: int = Field(description="Number of jobs currently stored.", examples=[1])
+    limit: int = Field(examples=[20])
+    offset: int = Field(examples=[0])
+    next_offset: int | None = Field(
+        None, description="Offset of the next page; null on the last page.", examples=[None]
+    )
+
+
+class TracksBody(BaseModel):
+    """JSON alternative to a file upload, for small inputs.
+
+    ``tracks[f][j]`` is the ``[x, y]`` image position of point ``j`` in frame ``f``.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    tracks: list[list[list[float]]] = Field(
+        description="F x P x 2 nested lists: tracks[f][j] = [x, y].",
+        examples=[[[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], [[0.1, 0.0], [1.0, 0.1], [0.0, 0.9]]]],
+    )
+    params: SolverParams | None = Field(None, description="Solver parameters.")
+    rotations: list[list[list[float]]] | None = Field(
+        None, description="Optional known camera rotations R, F x 2 x 3."
+    )
+    ground_truth: list[list[list[float]]] | None = Field(
+        None, description="Optional ground-truth shapes gt, F x P x 3 (enables metrics)."
+    )
+
+
+class ErrorBody(BaseModel):
+    """Every error response: one sentence a user can act on."""
+
+    detail: str = Field(examples=["job 0b7e9f6c-3a51-4f0e-9d7c-2c1e8a4b5d60 not found"])
+
+
+class Health(BaseModel):
+    """Answer of the health and readiness probes."""
+
+    status: Literal["ok"] = "ok"
+    workers: int | None = Field(
+        None, description="Workers registered on the queue (readiness only)."
+    )
+
+
+class Metrics(BaseModel):
+    """Accuracy of a finished job against the ground truth uploaded with it.
+
+    e3D is the relative 3D error of the paper's Eq. 17 after the named alignment:
+    ``procrustes`` (an orthogonal transform per frame, as in published tables), ``global``
+    (one transform for the sequence) and ``sign`` (no rotation, only the better depth sign).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    e3d_procrustes: float = Field(examples=[0.041])
+    e3d_global: float = Field(examples=[0.057])
+    e3d_sign: float = Field(examples=[0.62])
+    rotation_error_deg: float | None = Field(
+        None,
+        description="Mean camera rotation error in degrees; present when true rotations "
+        "were uploaded.",
+        examples=[1.9],
+    )

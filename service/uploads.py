@@ -1,0 +1,362 @@
+"""Reading a job submission: size limits, multipart or JSON body, parameters, validation.
+
+Nothing is enqueued unless the whole input passed here: the body is at most
+``MOJU_MAX_UPLOAD_BYTES`` (``Content-Length`` checked first, then the bytes actually
+streamed, so the server never reads more than the limit), files are parsed by
+:func:`moju_core.io.read_measurements` (no pickles, declared sizes checked before any data is
+read), and the parameters are :class:`moju_core.params.SolverParams`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from pathlib import PurePath
+from typing import Any
+
+import anyio.to_thread
+import numpy as np
+from pydantic import ValidationError
+from starlette.datastructures import UploadFile
+from starlette.formparsers import MultiPartException, MultiPartParser
+from starlette.requests import Request
+
+from moju_core import defaults
+from moju_core.errors import MeasurementError, MeasurementTooLarge
+from moju_core.io import Measurements, read_measurements
+from moju_core.params import SolverParams
+from moju_core.rotations import min_frames_for_bases
+from moju_core.validation import estimate_memory_bytes, tracks_to_W
+from service.errors import InvalidInput, UnsupportedMediaType, UploadTooLarge
+from service.schemas import InputSummary, TracksBody
+from service.settings import Settings, describe_bytes
+from service.validation_messages import describe_errors
+
+_FILE_FORMATS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv"}
+_FORM_FIELDS = ("file", "params")
+_TOO_DEEP = (
+    "{what} nests arrays or objects too deeply to be read; tracks are F x P x 2 nested lists "
+    "and parameters a flat object"
+)
+_HOW_TO_SEND = (
+    "send multipart/form-data with a 'file' field (npz, HDF5 or CSV) and an optional "
+    "'params' field (a JSON object), or application/json with 'tracks' (F x P x 2) and "
+    "'params'"
+)
+
+
+@dataclass(frozen=True)
+class Submission:
+    """A validated job submission, ready to be stored and enqueued."""
+
+    measurements: Measurements
+    params: SolverParams
+    summary: InputSummary
+
+
+def _mebibytes(n_bytes: int) -> str:
+    return f"{n_bytes / 2**20:.1f} MiB"
+
+
+def _too_large(size: int | str, limit: int) -> UploadTooLarge:
+    return UploadTooLarge(
+        f"the request body is {size} bytes; this server accepts at most {limit} bytes "
+        f"({_mebibytes(limit)}, MOJU_MAX_UPLOAD_BYTES): subsample the points or frames, or "
+        "send float32 data"
+    )
+
+
+def check_content_length(request: Request, limit: int) -> None:
+    """Refuse a body announced as larger than ``limit`` before reading any of it."""
+    declared = request.headers.get("content-length")
+    if declared is None:
+        return
+    try:
+        size = int(declared)
+    except ValueError:
+        raise InvalidInput(f"Content-Length {declared[:20]!r} is not a number") from None
+    if size > limit:
+        raise _too_large(size, limit)
+
+
+async def _limited_stream(request: Request, limit: int) -> AsyncIterator[bytes]:
+    """The body's chunks, stopping with 413 as soon as more than ``limit`` bytes arrived."""
+    received = 0
+    async for chunk in request.stream():
+        received += len(chunk)
+        if received > limit:
+            raise _too_large(f"more than {limit}", limit)
+        yield chunk
+
+
+def parse_params(value: Any) -> SolverParams:
+    """Validate solver parameters given as a dict (or None for all defaults)."""
+    if value is None:
+        return SolverParams()
+    if not isinstance(value, dict):
+        raise InvalidInput(
+            f'params must be a JSON object such as {{"max_iter": 100}}, got {type(value).__name__}'
+        )
+    try:
+        return SolverParams.model_validate(value)
+    except ValidationError as exc:
+        raise InvalidInput(describe_errors(exc.errors(), parameters_at=None)) from None
+
+
+def _params_from_form(text: str | None) -> SolverParams:
+    if text is None or not text.strip():
+        return SolverParams()
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InvalidInput(
+            f"the 'params' field is not valid JSON ({exc.msg} at character {exc.pos}); send a "
+            'JSON object such as {"max_iter": 100}'
+        ) from None
+    except RecursionError:
+        raise InvalidInput(_TOO_DEEP.format(what="the 'params' field")) from None
+    return parse_params(value)
+
+
+def _display_name(filename: str | None) -> str | None:
+    # Shown back to the user only; never used to build a path.
+    if not filename:
+        return None
+    return PurePath(filename.replace("\\", "/")).name[:255] or None
+
+
+def _file_format(upload: UploadFile) -> str:
+    """npz, h5 or csv: by the first bytes (as moju_core.io does), then by the file name."""
+    upload.file.seek(0)
+    magic = upload.file.read(8)
+    upload.file.seek(0)
+    if magic.startswith(b"PK\x03\x04"):
+        return "npz"
+    if magic.startswith(b"\x89HDF\r\n\x1a\n"):
+        return "h5"
+    return _FILE_FORMATS.get(PurePath(upload.filename or "").suffix.lower(), "csv")
+
+
+def _read_file(upload: UploadFile, settings: Settings) -> tuple[Measurements, str]:
+    """Parse the uploaded file (blocking: run in a worker thread)."""
+    file_format = _file_format(upload)
+    measurements = read_measurements(
+        upload.file,
+        format=file_format,
+        max_points=settings.max_points,
+        max_frames=settings.max_frames,
+    )
+    return measurements, file_format
+
+
+async def _from_multipart(request: Request, settings: Settings) -> Submission:
+    parser = MultiPartParser(
+        request.headers,
+        _limited_stream(request, settings.max_upload_bytes),
+        max_files=1,
+        # 'params', plus room for a 'file' sent as text so that it gets a clear message.
+        max_fields=2,
+    )
+    try:
+        form = await parser.parse()
+    except MultiPartException as exc:
+        raise InvalidInput(
+            f"could not read the multipart body: {exc.message.rstrip('.')}; {_HOW_TO_SEND}"
+        ) from None
+    try:
+        unexpected = [name for name in form.keys() if name not in _FORM_FIELDS]
+        if unexpected:
+            raise InvalidInput(
+                f"unexpected form field(s) {', '.join(map(repr, unexpected))}; {_HOW_TO_SEND}"
+            )
+        upload = form.get("file")
+        if upload is None:
+            raise InvalidInput(f"the form has no 'file' field; {_HOW_TO_SEND}")
+        if not isinstance(upload, UploadFile):
+            raise InvalidInput(
+                "the 'file' field must be a file upload, not text (curl: -F file=@tracks.npz)"
+            )
+        params_field = form.get("params")
+        if isinstance(params_field, UploadFile):
+            params_field = (await params_field.read()).decode("utf-8", errors="replace")
+        params = _params_from_form(params_field)
+        measurements, file_format = await anyio.to_thread.run_sync(_read_file, upload, settings)
+        size = upload.size or 0
+        filename = _display_name(upload.filename)
+    finally:
+        await form.close()
+    return _submission(measurements, params, file_format, filename, size)
+
+
+def _array(name: str, value: Any) -> np.ndarray:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except ValueError as exc:
+        raise MeasurementError(
+            f"{name} is not a rectangular array ({exc}); every row needs the same length"
+        ) from None
+
+
+def _measurements_from_json(body: TracksBody) -> Measurements:
+    W = tracks_to_W(_array("tracks", body.tracks))
+    rotations = None if body.rotations is None else _array("rotations", body.rotations)
+    truth = None if body.ground_truth is None else _array("ground_truth", body.ground_truth)
+    return Measurements(W=W, rotations=rotations, ground_truth=truth)
+
+
+async def _from_json(request: Request, settings: Settings) -> Submission:
+    body = bytearray()
+    async for chunk in _limited_stream(request, settings.max_upload_bytes):
+        body += chunk
+    try:
+        value = json.loads(body)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InvalidInput(f"the body is not valid JSON ({exc}); {_HOW_TO_SEND}") from None
+    except RecursionError:
+        raise InvalidInput(_TOO_DEEP.format(what="the JSON body")) from None
+    if not isinstance(value, dict):
+        raise InvalidInput(f"the JSON body must be an object; {_HOW_TO_SEND}")
+    try:
+        parsed = TracksBody.model_validate(value)
+    except ValidationError as exc:
+        raise InvalidInput(describe_errors(exc.errors(), parameters_at="params")) from None
+    measurements = await anyio.to_thread.run_sync(_measurements_from_json, parsed)
+    n_frames, n_points = measurements.n_frames, measurements.n_points
+    if n_points > settings.max_points or n_frames > settings.max_frames:
+        raise UploadTooLarge(
+            f"the tracks hold {n_frames} frames x {n_points} points; the limit is "
+            f"{settings.max_frames} frames and {settings.max_points} points. Send fewer frames "
+            "or subsample the points"
+        )
+    params = parsed.params or SolverParams()
+    return _submission(measurements, params, "json", None, len(body))
+
+
+def _submission(
+    measurements: Measurements,
+    params: SolverParams,
+    file_format: str,
+    filename: str | None,
+    size: int,
+) -> Submission:
+    if params.rotations == "known" and measurements.rotations is None:
+        raise InvalidInput(
+            "params.rotations is 'known' but the input has no rotations: add R (F x 2 x 3) "
+            "to the file (or 'rotations' to the JSON body), or choose rotations "
+            "'intersection' or 'rigid'"
+        )
+    check_params_fit(
+        params,
+        measurements.n_frames,
+        measurements.n_points,
+        has_rotations=measurements.rotations is not None,
+    )
+    summary = InputSummary(
+        frames=measurements.n_frames,
+        points=measurements.n_points,
+        format=file_format,
+        filename=filename,
+        size_bytes=size,
+        has_rotations=measurements.rotations is not None,
+        has_ground_truth=measurements.ground_truth is not None,
+        has_faces=measurements.faces is not None,
+        has_colors=measurements.colors is not None,
+    )
+    return Submission(measurements=measurements, params=params, summary=summary)
+
+
+def check_params_fit(
+    params: SolverParams, n_frames: int, n_points: int, *, has_rotations: bool
+) -> None:
+    """Refuse parameters that cannot work on F frames and P points (HTTP 422).
+
+    The solver checks the same things when it runs, but a job refused at submission costs
+    nobody a queue slot, and the user hears at once. Only sizes are compared here; the data
+    itself is judged by the solver.
+    """
+    uses_known = params.rotations == "known" or (
+        has_rotations and "rotations" not in params.model_fields_set
+    )
+    if not uses_known and n_frames < 3:
+        raise InvalidInput(
+            f"estimating the camera rotations (rotations '{params.rotations}') needs at least "
+            f"3 frames; the input has {n_frames}. Send more frames, or upload the rotations R "
+            "(F x 2 x 3) and use rotations 'known'"
+        )
+    if not uses_known and params.rotations == "intersection" and params.n_bases is not None:
+        needed = min_frames_for_bases(params.n_bases)
+        if n_frames < needed or n_points < 3 * params.n_bases + 1:
+            raise InvalidInput(
+                f"n_bases={params.n_bases} needs at least {needed} frames and "
+                f"{3 * params.n_bases + 1} points to determine the rotations; the input has "
+                f"{n_frames} frames and {n_points} points. Lower n_bases or leave it unset"
+            )
+    trajectory_length = 3 * n_frames
+    grouped = params.method in ("moju", "sdg")
+    if grouped and params.subspace_dim is not None and params.subspace_dim >= trajectory_length:
+        raise InvalidInput(
+            f"subspace_dim={params.subspace_dim} must be smaller than the length of a 3D "
+            f"trajectory, 3F = {trajectory_length} for {n_frames} frames. Lower subspace_dim "
+            "or leave it unset"
+        )
+    if grouped and params.n_groups is not None and params.n_groups > 1:
+        p = params.subspace_dim or min(defaults.SUBSPACE_DIM, trajectory_length - 1)
+        group = defaults.min_group_size(p)
+        if params.n_groups * group > n_points:
+            raise InvalidInput(
+                f"n_groups={params.n_groups} needs at least {params.n_groups * group} points "
+                f"(groups of at least {group} for subspace_dim={p}); the input has {n_points}. "
+                "Lower n_groups or leave it unset to derive it from the data"
+            )
+    if params.method == "pta" and params.trajectory_bases is not None:
+        if 3 * params.trajectory_bases > 2 * n_frames:
+            raise InvalidInput(
+                f"trajectory_bases={params.trajectory_bases} needs 3k <= 2F, i.e. at least "
+                f"{-(-3 * params.trajectory_bases // 2)} frames; the input has {n_frames}. "
+                f"Lower trajectory_bases (at most {2 * n_frames // 3}) or leave it unset"
+            )
+
+
+def check_memory(summary: InputSummary, limit: int) -> None:
+    """Refuse a job whose estimated solver memory exceeds ``limit`` (HTTP 413)."""
+    needed = estimate_memory_bytes(summary.frames, summary.points)
+    if needed > limit:
+        raise UploadTooLarge(
+            f"{summary.frames} frames x {summary.points} points would need about "
+            f"{describe_bytes(needed)} to solve; this server's workers allow "
+            f"{describe_bytes(limit)} per job (MOJU_WORKER_MEMORY_BYTES): subsample the points "
+            "or frames"
+        )
+
+
+async def read_submission(request: Request, settings: Settings) -> Submission:
+    """Read, bound and validate the body of ``POST /v1/jobs``.
+
+    Raises
+    ------
+    UploadTooLarge
+        Body above ``MOJU_MAX_UPLOAD_BYTES`` or estimated memory above
+        ``MOJU_WORKER_MEMORY_BYTES`` (413).
+    InvalidInput
+        Anything wrong with the file, the tracks or the parameters (422).
+    UnsupportedMediaType
+        A body that is neither multipart/form-data nor JSON (415).
+    """
+    check_content_length(request, settings.max_upload_bytes)
+    media_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    try:
+        if media_type == "multipart/form-data":
+            submission = await _from_multipart(request, settings)
+        elif media_type == "application/json":
+            submission = await _from_json(request, settings)
+        else:
+            raise UnsupportedMediaType(
+                f"unsupported content type {media_type or 'none'!r}; {_HOW_TO_SEND}"
+            )
+    except MeasurementTooLarge as exc:
+        raise UploadTooLarge(str(exc)) from None
+    except MeasurementError as exc:
+        raise InvalidInput(str(exc)) from None
+    check_memory(submission.summary, settings.worker_memory_bytes)
+    return submission

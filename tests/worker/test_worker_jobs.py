@@ -1,0 +1,103 @@
+"""The job function run in-process on a real Redis and a real data directory."""
+
+from __future__ import annotations
+
+import threading
+import time
+import warnings
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from moju_core import reconstruct
+from moju_core.params import SolverParams
+from moju_core.validation import tracks_to_W
+from service.states import JobStatus
+from worker.jobs import execute
+
+LONG = SolverParams(max_iter=10_000, tol=1e-30, rho_growth=1.0005, rho_max=1e12)
+
+
+def test_finished_job_stores_result_and_summary(store, storage, settings, add_job, face_W):
+    params = SolverParams(max_iter=30, seed=2)
+    job_id = add_job(face_W, params)
+
+    outcome = execute(job_id, store, storage, settings)
+
+    assert outcome == {"status": "finished", "n_iter": 30, "stop_reason": "max_iter"}
+    record = store.get(job_id, reconcile_with_rq=False)
+    assert record.status is JobStatus.FINISHED
+    assert record.started_at <= record.ended_at
+    assert record.progress.stage == "finished" and record.progress.fraction == 1.0
+    assert record.result.n_iter == 30
+    assert record.result.resolved_parameters.n_groups is not None  # derived defaults filled
+    stored = storage.read_result(job_id)
+    with threadpool_limits(limits=1), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        expected = reconstruct(face_W, params)
+    np.testing.assert_allclose(stored.shapes, expected.shapes, rtol=0, atol=1e-9)
+    # The solver's warnings reach the user, each once.
+    assert record.result.warnings == list(dict.fromkeys(str(w.message) for w in caught))
+    assert stored.metadata["job_id"] == str(job_id)
+    # Finished records expire with the retention period.
+    assert 0 < store.connection.ttl(f"moju:job:{job_id}") <= settings.result_ttl
+
+
+def test_measurement_error_fails_the_job_with_the_message(
+    store, storage, settings, add_job
+) -> None:
+    job_id = add_job(tracks_to_W(np.full((5, 20, 2), 3.0)))
+    outcome = execute(job_id, store, storage, settings)
+    assert outcome == {"status": "failed"}
+    record = store.get(job_id, reconcile_with_rq=False)
+    assert record.status is JobStatus.FAILED
+    assert record.error == "W is zero after centring: the points do not move in the image"
+    assert not storage.has_result(job_id)
+
+
+def test_job_cancelled_while_queued_is_not_run(store, storage, settings, add_job, face_W):
+    job_id = add_job(face_W)
+    store.cancel(job_id)
+    assert execute(job_id, store, storage, settings) == {"status": "cancelled"}
+    record = store.get(job_id, reconcile_with_rq=False)
+    assert record.status is JobStatus.CANCELLED and record.started_at is None
+
+
+def test_job_cancelled_while_running_stops_promptly(store, storage, settings, add_job, face_W):
+    job_id = add_job(face_W, LONG)
+    outcome: dict = {}
+    runner = threading.Thread(
+        target=lambda: outcome.update(execute(job_id, store, storage, settings))
+    )
+    runner.start()
+    deadline = time.monotonic() + 30
+    while True:
+        record = store.get(job_id, reconcile_with_rq=False)
+        if record.progress is not None and record.progress.iteration >= 3:
+            break
+        assert time.monotonic() < deadline, "the job never started iterating"
+        time.sleep(0.02)
+    cancelled_at = time.monotonic()
+    store.cancel(job_id)
+    runner.join(timeout=10)
+    assert not runner.is_alive()
+    assert time.monotonic() - cancelled_at < 1.0
+    assert outcome == {"status": "cancelled"}
+    record = store.get(job_id, reconcile_with_rq=False)
+    assert record.status is JobStatus.CANCELLED
+    assert record.progress.iteration < LONG.max_iter
+    assert not storage.has_result(job_id)
+
+
+def test_worker_refuses_a_job_over_its_memory_limit(store, storage, settings, add_job, face_W):
+    """The API refuses such jobs; a worker with a lower limit than the API's does too."""
+    small = settings.model_copy(update={"worker_memory_bytes": 100 * 2**20})
+    job_id = add_job(face_W)
+    assert execute(job_id, store, storage, small) == {"status": "failed"}
+    record = store.get(job_id, reconcile_with_rq=False)
+    assert record.status is JobStatus.FAILED
+    assert record.error == (
+        "10 frames x 300 points would need about 129 MiB to solve; this worker allows 100 MiB "
+        "per job (MOJU_WORKER_MEMORY_BYTES): subsample the points or frames"
+    )
+    assert not storage.has_result(job_id)

@@ -1,0 +1,285 @@
+"""The RQ job function: load a job's input, run the solver, store the result, record the outcome.
+
+Outcomes and what the user reads in the job's ``error``:
+
+* solver finished: status ``finished``, result in ``<data_dir>/jobs/<id>/result.h5``;
+* the input cannot be used (:class:`moju_core.errors.MeasurementError`): ``failed`` with the
+  solver's message verbatim;
+* time limit (``MOJU_JOB_TIMEOUT``) exceeded: ``failed`` with "timed out: ..." and the limit;
+* estimated memory above ``MOJU_WORKER_MEMORY_BYTES`` (the API refuses such jobs; a worker
+  with a smaller limit than the API's refuses them too): ``failed`` with the estimate;
+* anything else: ``failed`` with ``internal error: <type>: <message>``, and the traceback in
+  the worker's log;
+* cancelled (``DELETE``): the record already says ``cancelled``; the solver stops at its next
+  progress report and the worker just leaves.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import warnings
+from collections.abc import Callable
+from typing import Any
+from uuid import UUID
+
+from redis.exceptions import ConnectionError as RedisConnectionError
+from redis.exceptions import TimeoutError as RedisTimeoutError
+from rq import get_current_job
+from rq.timeouts import JobTimeoutException
+from threadpoolctl import threadpool_limits
+
+from moju_core.errors import Cancelled, MeasurementError
+from moju_core.result import Result
+from moju_core.validation import estimate_memory_bytes
+from service.connection import connect_redis
+from service.job_store import JobStore
+from service.schemas import JobRecord
+from service.settings import Settings, describe_bytes, get_settings
+from service.states import JobStatus
+from service.storage import LocalStorage, Storage
+from worker.heartbeat import Heartbeat
+from worker.progress import ProgressReporter
+
+logger = logging.getLogger(__name__)
+
+
+def run_reconstruction(job_id: str) -> dict[str, Any]:
+    """RQ entry point (enqueued by reference as ``worker.jobs.run_reconstruction``).
+
+    Parameters
+    ----------
+    job_id : str
+        The job's UUID; its input and record were written by the API before enqueueing.
+
+    Returns
+    -------
+    dict
+        ``{"status": ...}`` and, for finished jobs, ``n_iter`` and ``stop_reason`` (kept by
+        RQ as the job's return value, for operators).
+    """
+    settings = get_settings()
+    rq_job = get_current_job()
+    if rq_job is not None:
+        connection = rq_job.connection
+    else:  # called directly, outside a worker (debugging)
+        connection = connect_redis(settings.require_redis_url())
+    store = JobStore(connection, retention_seconds=settings.result_ttl)
+    # The limit that applies is the one the API gave RQ when it enqueued the job.
+    time_limit = rq_job.timeout if rq_job is not None and rq_job.timeout else None
+    return execute(
+        UUID(job_id), store, LocalStorage(settings.data_dir), settings, time_limit=time_limit
+    )
+
+
+def _summary(result: Result, caught: list[warnings.WarningMessage]) -> dict[str, Any]:
+    return {
+        "n_iter": int(result.n_iter),
+        "stop_reason": str(result.stop_reason),
+        "timings": {name: float(value) for name, value in result.timings.items()},
+        "resolved_parameters": result.params.model_dump(mode="json"),
+        # Distinct messages in order: a warning raised every iteration is shown once.
+        "warnings": list(dict.fromkeys(str(w.message) for w in caught)),
+    }
+
+
+def _final_progress(result: Result, reporter: ProgressReporter) -> dict[str, Any]:
+    gaps = result.history.get("gap")
+    last_gap = float(gaps[-1]) if gaps is not None and len(gaps) else None
+    rhos = result.history.get("rho")
+    last_rho = float(rhos[-1]) if rhos is not None and len(rhos) else None
+    elapsed = reporter.last_progress.elapsed if reporter.last_progress else 0.0
+    return {
+        "stage": "finished",
+        "iteration": int(result.n_iter),
+        "max_iter": int(result.params.max_iter),
+        "gap": last_gap,
+        "rho": last_rho,
+        "fraction": 1.0,
+        "elapsed": float(result.timings.get("total", elapsed)),
+        "eta": 0.0,
+    }
+
+
+def _solve(
+    record: JobRecord, storage: Storage, reporter: ProgressReporter, threads: int
+) -> tuple[Result, list[warnings.WarningMessage]]:
+    from moju_core import reconstruct  # the solver loads scikit-learn; only workers need it
+
+    measurements = storage.read_input(record.id)
+    # Limit BLAS/OpenMP threads per process: N worker processes x T threads should not
+    # exceed the cores, or they slow each other down (MOJU_WORKER_THREADS).
+    with threadpool_limits(limits=threads), warnings.catch_warnings(record=True) as caught:
+        # The user sees the solver's warnings in the job resource (result.warnings).
+        warnings.simplefilter("always")
+        result = reconstruct(
+            measurements.W,
+            record.parameters,
+            rotations=measurements.rotations,
+            callback=reporter,
+        )
+    for warning in caught:
+        logger.warning("job %s: %s", record.id, warning.message)
+    return result, caught
+
+
+def _until_redis_answers(action: Callable[[], bool], patience: float, job_id: UUID) -> bool:
+    """Run a final transition, retrying through a Redis outage of up to ``patience`` s.
+
+    The result is already on disk when a job's outcome is recorded; a Redis restart at that
+    moment must not turn a finished job into a lost one.
+    """
+    deadline = time.monotonic() + patience
+    delay = 0.2
+    while True:
+        try:
+            return action()
+        except (RedisConnectionError, RedisTimeoutError) as exc:
+            if time.monotonic() + delay > deadline:
+                raise
+            logger.warning("job %s: Redis did not answer (%s); retrying", job_id, exc)
+            time.sleep(delay)
+            delay = min(delay * 2, 5.0)
+
+
+def _memory_problem(record: JobRecord, settings: Settings) -> str | None:
+    needed = estimate_memory_bytes(record.input.frames, record.input.points)
+    if needed <= settings.worker_memory_bytes:
+        return None
+    return (
+        f"{record.input.frames} frames x {record.input.points} points would need about "
+        f"{describe_bytes(needed)} to solve; this worker allows "
+        f"{describe_bytes(settings.worker_memory_bytes)} per job (MOJU_WORKER_MEMORY_BYTES): "
+        "subsample the points or frames"
+    )
+
+
+def execute(
+    job_id: UUID,
+    store: JobStore,
+    storage: Storage,
+    settings: Settings,
+    *,
+    time_limit: int | None = None,
+) -> dict[str, Any]:
+    """Run one job to its end and record the outcome; see the module docstring.
+
+    ``time_limit`` is the job's RQ timeout in seconds, for the message when it is exceeded
+    (default ``settings.job_timeout``). While the job runs, a :class:`Heartbeat` renews its
+    lease; every outcome is recorded in the name of this attempt, so an attempt that was
+    given up (its worker seemed lost) cannot overwrite the job's fate.
+    """
+    attempt = store.start(job_id, lease_seconds=settings.heartbeat_ttl)
+    if attempt is None:
+        status = store.status(job_id)
+        logger.info("job %s: not started, it is %s", job_id, status.value if status else "gone")
+        return {"status": status.value if status else "deleted"}
+    record = store.get(job_id, reconcile_with_rq=False)
+    if record is None:  # deleted between start and now
+        return {"status": "deleted"}
+    logger.info(
+        "job %s: started (attempt %d, %d frames x %d points)",
+        job_id,
+        attempt,
+        record.input.frames,
+        record.input.points,
+    )
+    if attempt > 1:
+        storage.discard_outputs(job_id)  # whatever the lost attempt may have left
+    too_big = _memory_problem(record, settings)
+    if too_big is not None:
+        store.fail(job_id, too_big, attempt)
+        logger.info("job %s: refused, %s", job_id, too_big)
+        return {"status": JobStatus.FAILED.value}
+    heartbeat = Heartbeat(
+        store, job_id, attempt, interval=settings.heartbeat_interval, ttl=settings.heartbeat_ttl
+    )
+    with heartbeat:
+        return _run_attempt(
+            record, attempt, store, storage, settings, heartbeat, time_limit=time_limit
+        )
+
+
+def _run_attempt(
+    record: JobRecord,
+    attempt: int,
+    store: JobStore,
+    storage: Storage,
+    settings: Settings,
+    heartbeat: Heartbeat,
+    *,
+    time_limit: int | None,
+) -> dict[str, Any]:
+    job_id = record.id
+    reporter = ProgressReporter(
+        store, job_id, attempt=attempt, still_ours=lambda: not heartbeat.lost.is_set()
+    )
+    patience = settings.heartbeat_ttl
+    started = time.monotonic()
+    try:
+        result, caught = _solve(record, storage, reporter, settings.worker_threads)
+        storage.write_result(
+            job_id,
+            result,
+            metadata={"job_id": str(job_id), "input": record.input.model_dump(mode="json")},
+        )
+    except Cancelled:
+        # Only a user's cancel ends the job here; a job queued again or failed by the
+        # watchdog (or deleted) was taken from this attempt, which records nothing.
+        if heartbeat.lost.is_set() or reporter.stopped_because is not JobStatus.CANCELLED:
+            logger.info("job %s: attempt %d stopped, it no longer holds the job", job_id, attempt)
+            return {"status": "superseded"}
+        logger.info("job %s: stopped, it is %s", job_id, _status_text(reporter.stopped_because))
+        return {"status": JobStatus.CANCELLED.value}
+    except MeasurementError as exc:
+        message = str(exc)
+        if not _until_redis_answers(lambda: store.fail(job_id, message, attempt), patience, job_id):
+            # Cancelled meanwhile: that is the outcome.
+            return {"status": JobStatus.CANCELLED.value}
+        logger.info("job %s: failed on its input: %s", job_id, message)
+        return {"status": JobStatus.FAILED.value}
+    except JobTimeoutException:
+        limit = time_limit or settings.job_timeout
+        store.fail(
+            job_id,
+            f"timed out: the job ran longer than this server's limit of {limit} s "
+            "(MOJU_JOB_TIMEOUT) and was stopped: lower max_iter, subsample the points, or "
+            "ask the operator to raise the limit",
+            attempt,
+        )
+        raise  # RQ records the timeout in its failed registry too
+    except Exception as exc:
+        if store.status(job_id) is not JobStatus.RUNNING or heartbeat.lost.is_set():
+            # Cancelled or deleted while we were at it (e.g. the files vanished under us).
+            logger.info("job %s: ended by the user during %s", job_id, type(exc).__name__)
+            return {"status": JobStatus.CANCELLED.value}
+        logger.exception("job %s: internal error", job_id)
+        store.fail(job_id, f"internal error: {type(exc).__name__}: {exc}", attempt)
+        raise
+    summary, final = _summary(result, caught), _final_progress(result, reporter)
+    if not _until_redis_answers(
+        lambda: store.finish(job_id, summary, final, attempt), patience, job_id
+    ):
+        status = store.status(job_id)
+        if status in (JobStatus.FAILED, JobStatus.QUEUED):
+            # This attempt was given up while it finished: its result must not outlive it.
+            storage.discard_outputs(job_id)
+        # Cancelled after the result was written: the API deletes the files.
+        logger.info("job %s: finished but it is %s now", job_id, _status_text(status))
+        return {"status": status.value if status else "deleted"}
+    logger.info(
+        "job %s: finished in %.2f s (%d iterations, %s)",
+        job_id,
+        time.monotonic() - started,
+        result.n_iter,
+        result.stop_reason,
+    )
+    return {
+        "status": JobStatus.FINISHED.value,
+        "n_iter": int(result.n_iter),
+        "stop_reason": result.stop_reason,
+    }
+
+
+def _status_text(status: JobStatus | None) -> str:
+    return status.value if status is not None else "deleted"

@@ -1,0 +1,96 @@
+"""The worker process (``moju worker``): RQ's forking worker on the MoJu queue.
+
+RQ forks a "work horse" per job, so a crash or a leak in one job never outlives it; the
+solver is imported once in the parent before forking, so each job starts without paying
+for the imports of numpy, scipy and scikit-learn again.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+
+from rq import Queue, Worker
+from rq.job import Job as RQJob
+
+from service.connection import connect_redis
+from service.job_store import JobStore
+from service.log_setup import configure_logging
+from service.queueing import job_id_of_rq_job, job_queue
+from service.settings import Settings, get_settings
+
+logger = logging.getLogger(__name__)
+
+INTERRUPTED = (
+    "the worker running this job was shut down before the job ended (service stopped or "
+    "restarted); submit the job again"
+)
+
+
+class MojuWorker(Worker):
+    """RQ's worker, remembering a job whose execution was interrupted by a shutdown.
+
+    RQ's cold shutdown (a second SIGTERM or Ctrl-C) kills the work horse and leaves the job
+    "started" until RQ's own maintenance notices much later; recording the interruption
+    here tells the user at once.
+    """
+
+    interrupted_job_id: str | None = None
+
+    def execute_job(self, job: RQJob, queue: Queue) -> None:
+        """Run one job in a work horse, noting the job if a shutdown interrupts it."""
+        try:
+            super().execute_job(job, queue)
+        except BaseException:
+            self.interrupted_job_id = job.id
+            raise
+
+
+def _record_interruption(worker: MojuWorker, settings: Settings) -> None:
+    rq_id = worker.interrupted_job_id
+    if rq_id is None:
+        return
+    job_id = job_id_of_rq_job(rq_id)
+    if job_id is None:  # not one of ours (someone else's job on our queue)
+        return
+    store = JobStore(worker.connection, retention_seconds=settings.result_ttl)
+    if store.rq_job_of(job_id) != rq_id:
+        return  # an attempt that had been given up already; another one holds the job
+    if store.fail(job_id, INTERRUPTED):
+        logger.warning("job %s: interrupted by the worker's shutdown", job_id)
+
+
+def run_worker(*, burst: bool = False, name: str | None = None) -> bool:
+    """Take jobs from the queue until stopped (or, with ``burst``, until it is empty).
+
+    Configuration comes from the ``MOJU_*`` environment (:func:`service.settings.get_settings`),
+    the same place the job function reads it from in the forked work horses.
+
+    Parameters
+    ----------
+    burst : bool
+        Quit once the queue is empty instead of waiting for more jobs.
+    name : str, optional
+        Worker name shown by ``rq info``; RQ picks a unique one by default.
+    Returns
+    -------
+    bool
+        True when at least one job was run.
+    """
+    configure_logging()
+    settings = get_settings()
+    if settings.worker_niceness:
+        os.nice(settings.worker_niceness)  # solving yields the CPU to the API
+    connection = connect_redis(settings.require_redis_url())
+    import moju_core.solver  # noqa: F401 - preloaded so that forked work horses share it
+
+    worker = MojuWorker(
+        [job_queue(connection, settings)],
+        connection=connection,
+        name=name,
+        default_result_ttl=settings.result_ttl,
+    )
+    try:
+        return worker.work(burst=burst, logging_level="INFO")
+    finally:
+        _record_interruption(worker, settings)
