@@ -1,0 +1,299 @@
+"""What every benchmark script shares: one way to run a method on a sequence and record its
+metrics, the run's provenance (machine, library versions, command) and the writers of the
+result files.
+
+A measurement is a flat dictionary (a "row"): the sequence and its size, the noise level, the
+rotations used, the method and any parameter overrides, e3D in two alignments, the camera
+rotation error, the wall time and the solver's own timings, iterations, stop reason and the
+resolved parameters that matter for reading the number (groups, p, the PTA basis size).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shlex
+import sys
+import time
+import warnings
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from moju_core import SolverParams, reconstruct
+from moju_core.datasets import Sequence as Dataset
+from moju_core.datasets import make_sequence
+from moju_core.metrics import evaluate
+
+BENCHMARKS = Path(__file__).resolve().parent
+RESULTS = BENCHMARKS / "results"
+
+#: Every method, in the order of the tables: the baselines first, MoJu last (as in Table 1).
+METHODS = ("pta", "bmm", "sdg", "moju")
+
+
+def sequence(name: str, n_points: int | None = None, noise: float = 0.0, seed: int = 0) -> Dataset:
+    """A benchmark sequence (deterministic; generating one takes well under a second, so none
+    is cached: a full-size sequence holds about 100 MB)."""
+    return make_sequence(name, n_points=n_points, noise=noise, seed=seed)
+
+
+def estimated_rotations(data: Dataset, seed: int = 0) -> tuple[np.ndarray, float, int | None]:
+    """Camera rotations as :func:`moju_core.reconstruct` estimates them by default.
+
+    They are estimated once per sequence and handed to every method as given rotations, so
+    that the methods are compared on the same cameras. The rotation step is the solver's own:
+    ``reconstruct`` with ``rotations="intersection"`` and the cheapest method (``pta``, one
+    linear solve after the rotations).
+
+    Returns
+    -------
+    rotations : ndarray of shape (F, 2, 3)
+    seconds : float
+        Time of the rotation step.
+    n_bases : int or None
+        Number of shape bases the rotation step chose.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the rotation step's fallbacks; the error is measured
+        result = reconstruct(
+            data.W, SolverParams(method="pta", rotations="intersection", seed=seed)
+        )
+    return result.rotations, result.timings["rotations"], result.params.n_bases
+
+
+def solve(
+    data: Dataset,
+    method: str,
+    *,
+    rotations: np.ndarray | None = None,
+    rotation_source: str = "known",
+    seed: int = 0,
+    keep_history: bool = False,
+    **overrides: Any,
+) -> dict[str, Any]:
+    """Reconstruct one sequence with one method and measure the result.
+
+    Parameters
+    ----------
+    data : moju_core.datasets.Sequence
+        The sequence, with its ground truth.
+    method : str
+        ``SolverParams.method``.
+    rotations : ndarray of shape (F, 2, 3), optional
+        Rotations to use; the true ones when omitted.
+    rotation_source : str, default "known"
+        Label of the rotations in the row (``"known"`` or ``"estimated"``).
+    seed : int, default 0
+        Solver seed.
+    keep_history : bool, default False
+        Add the per-iteration history (lists) to the row.
+    **overrides
+        Further :class:`SolverParams` fields (e.g. ``subspace_dim=6``).
+
+    Returns
+    -------
+    dict
+        The row (see the module docstring).
+    """
+    used = data.rotations if rotations is None else rotations
+    params = SolverParams(method=method, rotations="known", seed=seed, **overrides)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        start = time.perf_counter()
+        result = reconstruct(data.W, params, rotations=used)
+        seconds = time.perf_counter() - start
+    scores = evaluate(result.shapes, data.shapes, result.rotations, data.rotations)
+    row: dict[str, Any] = {
+        "sequence": data.name,
+        "n_frames": data.n_frames,
+        "n_points": data.n_points,
+        "noise": data.noise,
+        "rotations": rotation_source,
+        "method": method,
+        "overrides": overrides,
+        "e3d": scores["e3d_procrustes"],
+        "e3d_global": scores["e3d_global"],
+        "rotation_error_deg": scores["rotation_error_deg"],
+        "seconds": seconds,
+        "iterate_seconds": result.timings["iterate"],
+        "n_iter": result.n_iter,
+        "stop_reason": result.stop_reason,
+        "n_groups": result.extras["n_groups_used"],
+        "subspace_dim": result.params.subspace_dim,
+        "trajectory_bases": result.params.trajectory_bases,
+        "warnings": sorted({str(w.message) for w in caught}),
+    }
+    if keep_history:
+        row["history"] = {key: values.tolist() for key, values in result.history.items()}
+        row["beta2"] = result.params.beta2
+        row["scale"] = result.scale
+    return row
+
+
+def peak_memory_mb() -> float:
+    """Peak resident memory of this process so far (MB): ``VmHWM`` of /proc/self/status, which
+    belongs to the current program image, or ``ru_maxrss`` where /proc is missing."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1024 * 1024 if sys.platform == "darwin" else 1024)
+
+
+def describe(row: dict[str, Any]) -> str:
+    """One progress line for a row."""
+    extra = " ".join(
+        f"{key}={value:.3g}" if isinstance(value, float) else f"{key}={value}"
+        for key, value in row["overrides"].items()
+    )
+    return (
+        f"  {row['sequence']:6s} P={row['n_points']:6,d} noise={row['noise']:.3f} "
+        f"{row['rotations']:9s} {row['method']:4s} {extra:24s} e3D={row['e3d']:.4f} "
+        f"{row['seconds']:7.2f} s {row['n_iter']:4d} it {row['stop_reason']}"
+    )
+
+
+# --- provenance ---------------------------------------------------------------------------
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _cpu_count() -> int:
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def provenance(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """Machine, library versions, the command and the time of a benchmark run."""
+    import matplotlib
+    import scipy
+    import sklearn
+    from threadpoolctl import threadpool_info
+
+    import moju_core
+
+    argv = list(sys.argv if argv is None else argv)
+    script = Path(argv[0])
+    try:
+        script = script.resolve().relative_to(BENCHMARKS.parent)
+    except ValueError:
+        pass
+    try:
+        load = os.getloadavg()[0]
+    except OSError:
+        load = float("nan")
+    return {
+        "command": shlex.join(["python", str(script), *argv[1:]]),
+        "started": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+        "machine": {
+            "cpu": _cpu_model(),
+            "cores": _cpu_count(),
+            "platform": platform.platform(),
+            "load_average_at_start": round(load, 2),
+        },
+        "versions": {
+            "python": platform.python_version(),
+            "moju": moju_core.__version__,
+            "numpy": np.__version__,
+            "scipy": scipy.__version__,
+            "scikit-learn": sklearn.__version__,
+            "matplotlib": matplotlib.__version__,
+        },
+        "blas": sorted(
+            {f"{i['internal_api']} {i.get('version') or ''}" for i in threadpool_info()}
+        ),
+        "solver_threads": 1,
+    }
+
+
+def provenance_lines(meta: dict[str, Any]) -> list[str]:
+    """The provenance as markdown lines for the head of a result file."""
+    versions = ", ".join(f"{name} {version}" for name, version in meta["versions"].items())
+    machine = meta["machine"]
+    return [
+        f"Command: `{meta['command']}` (started {meta['started']}).",
+        f"Machine: {machine['cpu']}, {machine['cores']} cores, {machine['platform']}, load "
+        f"average {machine['load_average_at_start']} at the start (shared machine); the solver "
+        f"runs on {meta['solver_threads']} BLAS thread ({', '.join(meta['blas'])}).",
+        f"Versions: {versions}.",
+    ]
+
+
+# --- writers -------------------------------------------------------------------------------
+
+
+def write_json(path: Path, meta: dict[str, Any], **content: Any) -> Path:
+    """``{"meta": ..., **content}`` as indented JSON (NaN and inf become null)."""
+
+    def clean(value: Any) -> Any:
+        if isinstance(value, float) and not np.isfinite(value):
+            return None
+        if isinstance(value, dict):
+            return {key: clean(item) for key, item in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [clean(item) for item in value]
+        if isinstance(value, np.generic):
+            return clean(value.item())
+        return value
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(clean({"meta": meta, **content}), indent=1) + "\n")
+    return path
+
+
+def write_markdown(path: Path, title: str, meta: dict[str, Any], body: Iterable[str]) -> Path:
+    """A markdown file: title, provenance, then ``body``."""
+    lines = [f"# {title}", "", *provenance_lines(meta), "", *body]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines).rstrip() + "\n")
+    return path
+
+
+def table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
+    """A markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
+    return lines
+
+
+def figure(*args: Any, **kwargs: Any):
+    """``matplotlib.pyplot.subplots`` on the non-interactive backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(*args, **kwargs)
+
+
+def save_figure(fig: Any, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def mean(values: Iterable[float]) -> float:
+    values = list(values)
+    return float(np.mean(values)) if values else float("nan")
