@@ -11,7 +11,6 @@ was 8-13 degrees off on the latter.
 
 from __future__ import annotations
 
-import time
 import warnings
 
 import numpy as np
@@ -376,16 +375,12 @@ def test_bad_arguments_are_rejected():
 # ----------------------------------------------------------------------------------------
 
 
-def test_dense_face_sized_sequence_is_fast():
-    # Face sequences 3-4 of the paper: 99 frames, 28,880 points. Measured 0.4, 0.9 and 1.3 s
-    # for K = 3, 4, 5 on a shared two-core machine (1.1 s for the project's face4); the
-    # joint fit dominates, the 198 x 28,880 Gram product takes 0.02-0.3 s.
+def test_dense_face_sized_sequence_is_recovered():
+    # Face sequences 3-4 of the paper: 99 frames, 28,880 points. Its time (0.4-1.3 s for
+    # K = 3-5 on a shared two-core machine) is a benchmark figure, not asserted here.
     W, R_true, _ = make_sequence(n_frames=99, n_points=28_880, n_bases=4, seed=19)
-    start = time.perf_counter()
     R = estimate_rotations(W)
-    elapsed = time.perf_counter() - start
     assert rotation_error_deg(R, R_true) < 0.1
-    assert elapsed < 5.0
 
 
 # ----------------------------------------------------------------------------------------

@@ -180,7 +180,7 @@ def test_running_attempt_stops_when_given_up(
     given_up = time.monotonic()
     runner.join(timeout=10)
     assert not runner.is_alive()
-    assert time.monotonic() - given_up < 2.0
+    assert time.monotonic() - given_up < 5.0  # next beat, with slack for load
     assert outcome == {"status": "superseded"}
     record = store.get(job_id, reconcile_with_rq=False)
     assert record.status is JobStatus.QUEUED and record.progress is None

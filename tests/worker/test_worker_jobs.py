@@ -81,7 +81,7 @@ def test_job_cancelled_while_running_stops_promptly(store, storage, settings, ad
     store.cancel(job_id)
     runner.join(timeout=10)
     assert not runner.is_alive()
-    assert time.monotonic() - cancelled_at < 1.0
+    assert time.monotonic() - cancelled_at < 5.0  # next iteration, with slack for load
     assert outcome == {"status": "cancelled"}
     record = store.get(job_id, reconcile_with_rq=False)
     assert record.status is JobStatus.CANCELLED
