@@ -36,6 +36,8 @@
   };
 
   const $ = (selector) => document.querySelector(selector);
+  // viewer.js is loaded first (index.html) and builds elements the same way.
+  const { element } = MojuViewer;
 
   function apiKey() {
     try {
@@ -114,17 +116,6 @@
   function showError(node, message) {
     node.textContent = message || "";
     node.hidden = !message;
-  }
-
-  function element(tag, attributes = {}, text = null) {
-    const node = document.createElement(tag);
-    for (const [name, value] of Object.entries(attributes)) {
-      node.setAttribute(name, value);
-    }
-    if (text !== null) {
-      node.textContent = text;
-    }
-    return node;
   }
 
   function seconds(value) {

@@ -88,6 +88,7 @@
     return hslToHex(hue, 70, 45);
   }
 
+  /** A new `tag` element with `attributes` and, unless null, `text` (shared with app.js). */
   function element(tag, attributes = {}, text = null) {
     const node = document.createElement(tag);
     for (const [name, value] of Object.entries(attributes)) {
@@ -455,5 +456,5 @@
     }
   }
 
-  global.MojuViewer = { Viewer, httpSource, embeddedSource, groupColor };
+  global.MojuViewer = { Viewer, httpSource, embeddedSource, groupColor, element };
 })(window);
