@@ -367,7 +367,8 @@ def _format_scores(scores: dict[str, float], *, rotations_estimated: bool) -> li
 def _summary(result: Result, n_frames: int, n_points: int) -> str:
     reason = STOP_REASONS.get(result.stop_reason, result.stop_reason)
     return (
-        f"{n_frames} frames x {n_points} points: {result.n_iter} iterations, {reason}, "
+        f"{n_frames} frames x {n_points} points: {result.n_iter} "
+        f"iteration{'' if result.n_iter == 1 else 's'}, {reason}, "
         f"{result.timings['total']:.1f} s"
     )
 
