@@ -61,7 +61,7 @@ from moju_core.datasets import make_sequence  # noqa: E402
 from moju_core.io import Measurements, read_result, write_measurements  # noqa: E402
 from moju_core.params import SolverParams  # noqa: E402
 from service.auth import key_digest  # noqa: E402
-from service.processes import free_port, stop_process  # noqa: E402
+from service.processes import children_of, free_port, stop_process  # noqa: E402
 from service.redis_server import RedisServer  # noqa: E402
 
 RESULTS = REPO / "benchmarks" / "results"
@@ -259,18 +259,6 @@ class Service:
             stop_process(worker, timeout=10)
         self.redis.stop()
 
-
-def children_of(pid: int) -> list[int]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[-1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                found.append(int(entry.name))
-    return found
 
 
 def current_job(log_path: Path) -> str | None:

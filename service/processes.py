@@ -9,6 +9,7 @@ import signal
 import socket
 import subprocess
 import sys
+from pathlib import Path
 
 # From <linux/prctl.h>.
 _PR_SET_PDEATHSIG = 1
@@ -50,3 +51,18 @@ def stop_process(process: subprocess.Popen, *, timeout: float, sig: int = signal
         except ProcessLookupError:
             pass
     return wait_or_kill(process, timeout=timeout)
+
+
+def children_of(pid: int) -> list[int]:
+    """PIDs whose parent is ``pid``, from Linux's /proc (e.g. an RQ worker's work horse);
+    used by the fault tests and the soak benchmark to kill a job mid-solve."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[-1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry.name))
+    return found

@@ -72,19 +72,6 @@ def worker_environment(settings: Settings, **extra: str) -> dict[str, str]:
     return env
 
 
-def children_of(pid: int) -> list[int]:
-    """PIDs whose parent is ``pid`` (Linux /proc): a worker's work horse."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[-1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                found.append(int(entry.name))
-    return found
-
 
 @contextlib.contextmanager
 def running_worker(settings: Settings, log_path: Path, **env: str) -> Iterator[WorkerProcess]:

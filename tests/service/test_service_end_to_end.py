@@ -21,7 +21,6 @@ from redis import Redis
 from rq.job import Job as RQJob
 from service_testing import (
     LONG_PARAMS,
-    children_of,
     collapsed_tracks,
     measurements_of,
     running_worker,
@@ -35,6 +34,7 @@ from moju_core.params import SolverParams
 from moju_core.ply import read_ply_points
 from service.app import create_app
 from service.client import JobFailed, MojuClient
+from service.processes import children_of
 from service.schemas import JobResource
 from service.settings import Settings
 from service.states import JobStatus

@@ -21,7 +21,6 @@ from redis import Redis
 from rq.job import Job as RQJob
 from service_testing import (
     LONG_PARAMS,
-    children_of,
     measurements_of,
     running_worker,
     wait_for,
@@ -33,6 +32,7 @@ from moju_core.io import read_result, write_measurements
 from moju_core.params import SolverParams
 from service.app import create_app
 from service.job_store import JobStore
+from service.processes import children_of
 from service.redis_server import RedisServer, find_redis_server
 from service.settings import Settings
 from service.storage import INPUT_NAME
