@@ -15,7 +15,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from moju_core import camera, clustering, grassmann, jump, lrr
-from moju_core.defaults import SETTLED_MOVE_FRACTION, min_group_size
+from moju_core.defaults import (
+    GAP_PRECISION,
+    SETTLED_MOVE_FRACTION,
+    STALL_ITERATIONS,
+    min_group_size,
+)
 from moju_core.params import SolverParams
 
 #: Called once per iteration with (iteration, gap, rho); returning True stops the loop.
@@ -143,6 +148,7 @@ def run(
     stop_reason = "max_iter"
     labels_stable = True
     settled_moves = int(SETTLED_MOVE_FRACTION * n_points)
+    smallest_gap, since_smallest = np.inf, 0
     total_relabelled = 0
     iteration = 0
     for iteration in range(1, params.max_iter + 1):
@@ -252,7 +258,14 @@ def run(
         # that test would always run to rho_max; C and Z steer the grouping only, so the loop
         # stops when the shape gap is below tol and the last regrouping moved (almost) no
         # trajectory: at most SETTLED_MOVE_FRACTION of them.
-        if gap_shape < params.tol and labels_stable:
+        # A gap below GAP_PRECISION that has stopped falling is at the precision of the S#
+        # step (its Gram-matrix SVD); it would not reach a smaller tol.
+        if gap_shape < smallest_gap:
+            smallest_gap, since_smallest = gap_shape, 0
+        else:
+            since_smallest += 1
+        at_precision = smallest_gap < GAP_PRECISION and since_smallest >= STALL_ITERATIONS
+        if (gap_shape < params.tol or at_precision) and labels_stable:
             stop_reason = "converged"
             break
         if rho >= params.rho_max:

@@ -48,6 +48,18 @@ BETA2_RELATIVE = 2e-3
 #: a regrouping that moves nobody then ran 100,000-point solves to the iteration cap (243
 #: iterations instead of about 120) without changing e3D.
 SETTLED_MOVE_FRACTION = 1e-3
+#: Shape gap that counts as converged once it stops falling (see ``STALL_ITERATIONS``). The S#
+#: step takes its SVD through the F x F Gram matrix, which squares the condition number: its
+#: result is exact only to about sqrt(machine epsilon) ~ 1e-8 relative. On noisy data S# has
+#: no exactly-zero singular values, and once the threshold beta2 / rho falls to their level the
+#: gap stops at 1e-9 to 1e-7 instead of reaching tol = 1e-10 (face3, 5,000 points, 4.5 % noise:
+#: minimum 5e-10 at iteration 130, then rising with rho); with a full SVD the same run reaches
+#: tol at iteration 145. Without this rule such runs went on to rho_max (243 iterations) with
+#: no change in e3D.
+GAP_PRECISION = 1e-8
+#: Iterations without a new smallest shape gap after which a gap below ``GAP_PRECISION`` counts
+#: as converged.
+STALL_ITERATIONS = 10
 #: Largest condition number of the PTA system accepted by the default basis size: errors in the
 #: tracks may grow at most tenfold in the trajectory coefficients.
 PTA_MAX_CONDITION = 10.0

@@ -52,7 +52,8 @@ class Result:
     n_iter : int
         Number of ADMM iterations run.
     stop_reason : str
-        ``"converged"`` (gap below ``tol``), ``"rho_max"`` or ``"max_iter"``.
+        ``"converged"`` (shape gap below ``tol``, or stalled below 1e-8, with the grouping
+        settled; see docs/solver.md), ``"rho_max"`` or ``"max_iter"``.
     scale : float
         The factor the tracks were divided by before solving (RMS of the centred tracks).
     """
