@@ -264,7 +264,11 @@ def run(
             smallest_gap, since_smallest = gap_shape, 0
         else:
             since_smallest += 1
-        at_precision = smallest_gap < GAP_PRECISION and since_smallest >= STALL_ITERATIONS
+        at_precision = (
+            params.tol > 0  # tol = 0: no convergence test at all
+            and smallest_gap < GAP_PRECISION
+            and since_smallest >= STALL_ITERATIONS
+        )
         if (gap_shape < params.tol or at_precision) and labels_stable:
             stop_reason = "converged"
             break

@@ -432,7 +432,10 @@ def _locate_csv_error(body: str, columns: list[int], source_name: str) -> str | 
     for line_number, line in enumerate(body.splitlines(), start=2):
         if not line:
             continue
-        cells = next(csv.reader([line]))
+        try:
+            cells = next(csv.reader([line]))
+        except csv.Error as exc:  # e.g. a lone carriage return inside a field
+            return f"line {line_number} of {source_name} is not valid CSV: {exc}"
         if len(cells) <= max(columns):
             return (
                 f"line {line_number} of {source_name} has {len(cells)} column(s); the header "
@@ -489,7 +492,14 @@ def _read_csv(
             "valid UTF-8"
         ) from exc
     header, _, body = text.partition("\n")
-    names = [cell.strip().lower() for cell in next(csv.reader([header.rstrip("\r")]), [])]
+    try:
+        cells = next(csv.reader([header.rstrip("\r")]), [])
+    except csv.Error as exc:  # e.g. a lone carriage return inside a field
+        raise MeasurementError(
+            f"the first line of {source_name} is not a valid CSV header ({exc}); it must name "
+            "the columns frame,point,x,y"
+        ) from exc
+    names = [cell.strip().lower() for cell in cells]
     missing = [column for column in _CSV_COLUMNS if column not in names]
     if missing:
         raise MeasurementError(

@@ -96,7 +96,15 @@ class SolverParams(BaseModel):
         10, ge=1, le=1000, description="Run the grouping steps 4-8 every m-th iteration."
     )
     max_iter: int = Field(300, ge=1, le=10000, description="Iteration cap of the ADMM loop.")
-    tol: float = Field(1e-10, gt=0, le=1.0, description="Convergence threshold on the gap.")
+    tol: float = Field(
+        1e-10,
+        ge=0,
+        le=1.0,
+        description=(
+            "Convergence threshold on the shape gap ||S# - f(S)||_inf; 0 turns the convergence "
+            "test off, and the loop runs to rho_max or max_iter."
+        ),
+    )
     rho: float = Field(1e-2, gt=0, le=1e6, description="Initial penalty parameter.")
     rho_max: float = Field(1e8, gt=0, le=1e12, description="Largest penalty parameter.")
     rho_growth: float = Field(1.1, gt=1.0, le=10.0, description="Penalty growth factor c.")

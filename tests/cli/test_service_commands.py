@@ -28,7 +28,7 @@ from service.processes import free_port
 from worker.runner import INTERRUPTED
 
 REPO = Path(__file__).resolve().parents[2]
-LONG_PARAMS = ["max_iter=10000", "tol=1e-30", "rho_growth=1.0005", "rho_max=1e12"]
+LONG_PARAMS = ["max_iter=10000", "tol=0.0", "rho_growth=1.0005", "rho_max=1e12"]
 
 
 def moju_command() -> list[str]:

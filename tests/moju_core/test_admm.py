@@ -53,3 +53,11 @@ def test_a_gap_stalled_at_the_precision_of_the_svd_counts_as_converged() -> None
     assert result.n_iter < 200
     assert gaps.min() < GAP_PRECISION and gaps.min() > SolverParams().tol  # the stall, not tol
     assert e3d(result.shapes, data.shapes) < 0.035
+
+
+def test_tol_zero_turns_the_convergence_test_off() -> None:
+    data = make_sequence("face1", n_points=1000)
+    params = SolverParams(rotations="known", tol=0.0, rho_max=1e10, max_iter=150)
+    result = reconstruct(data.W, params, rotations=data.rotations)
+    assert result.stop_reason == "max_iter" and result.n_iter == 150
+    assert result.history["gap_shape"].min() < GAP_PRECISION  # the stall rule would have fired

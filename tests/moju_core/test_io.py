@@ -489,6 +489,11 @@ def test_csv_missing_column():
     assert "lacks column(s) y" in csv_error("frame,point,x\n0,0,1\n")
 
 
+def test_csv_header_the_csv_module_refuses_is_a_measurement_error():
+    # A lone carriage return inside the header (found by the fuzz test): csv.Error before.
+    assert "not a valid CSV header" in csv_error("frame,po\rint,x,y\n0,0,1,1\n")
+
+
 def test_csv_repeated_column():
     assert "x twice" in csv_error("frame,point,x,x,y\n0,0,1,1,1\n")
 

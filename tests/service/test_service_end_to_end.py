@@ -42,7 +42,7 @@ from worker.runner import INTERRUPTED
 
 # About 1500 iterations of a 300-point problem: long enough (a few seconds) to watch the
 # progress advance, short enough for the test budget.
-WATCHABLE_PARAMS = {"max_iter": 1500, "tol": 1e-30, "rho_growth": 1.01, "rho_max": 1e12}
+WATCHABLE_PARAMS = {"max_iter": 1500, "tol": 0.0, "rho_growth": 1.01, "rho_max": 1e12}
 
 
 def test_upload_run_follow_download_delete(

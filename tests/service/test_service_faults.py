@@ -42,7 +42,7 @@ pytestmark = pytest.mark.skipif(
 )
 
 #: A few seconds of work on the 300-point face: long enough to be killed mid-way.
-MEDIUM_PARAMS = {"max_iter": 1500, "tol": 1e-30, "rho_growth": 1.01, "rho_max": 1e12}
+MEDIUM_PARAMS = {"max_iter": 1500, "tol": 0.0, "rho_growth": 1.01, "rho_max": 1e12}
 #: What a work horse killed while writing its result would leave in the job's directory.
 HALF_WRITTEN = ".result.h5.0123456789ab.tmp"
 

@@ -280,7 +280,7 @@ CASES: list[tuple[str, Callable[[], dict], int, tuple[str, ...]]] = [
         "negative tolerance",
         lambda: _file(_npz(W=GOOD_W), params={"tol": -1}),
         422,
-        ("parameter 'tol'", "greater than 0"),
+        ("parameter 'tol'", "greater than or equal to 0"),
     ),
     (
         "NaN penalty",

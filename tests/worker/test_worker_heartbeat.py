@@ -24,7 +24,7 @@ from service.watchdog import Watchdog
 from worker.heartbeat import Heartbeat
 from worker.jobs import execute
 
-LONG = SolverParams(max_iter=10_000, tol=1e-30, rho_growth=1.0005, rho_max=1e12)
+LONG = SolverParams(max_iter=10_000, tol=0.0, rho_growth=1.0005, rho_max=1e12)
 
 
 @pytest.fixture

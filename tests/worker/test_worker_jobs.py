@@ -15,7 +15,7 @@ from moju_core.validation import tracks_to_W
 from service.states import JobStatus
 from worker.jobs import execute
 
-LONG = SolverParams(max_iter=10_000, tol=1e-30, rho_growth=1.0005, rho_max=1e12)
+LONG = SolverParams(max_iter=10_000, tol=0.0, rho_growth=1.0005, rho_max=1e12)
 
 
 def test_finished_job_stores_result_and_summary(store, storage, settings, add_job, face_W):
