@@ -53,16 +53,30 @@ def stop_process(process: subprocess.Popen, *, timeout: float, sig: int = signal
     return wait_or_kill(process, timeout=timeout)
 
 
-def children_of(pid: int) -> list[int]:
-    """PIDs whose parent is ``pid``, from Linux's /proc (e.g. an RQ worker's work horse);
-    used by the fault tests and the soak benchmark to kill a job mid-solve."""
-    found = []
+def _parents() -> dict[int, int]:
+    """Parent PID of every process, from Linux's /proc."""
+    parents: dict[int, int] = {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
                 fields = (entry / "stat").read_text().rsplit(")", 1)[-1].split()
             except OSError:
-                continue
-            if int(fields[1]) == pid:
-                found.append(int(entry.name))
+                continue  # gone meanwhile
+            parents[int(entry.name)] = int(fields[1])
+    return parents
+
+
+def children_of(pid: int) -> list[int]:
+    """PIDs whose parent is ``pid`` (e.g. an RQ worker's work horse); used by the fault tests
+    and the soak benchmark to kill a job mid-solve."""
+    return [child for child, parent in _parents().items() if parent == pid]
+
+
+def descendants(pid: int) -> set[int]:
+    """Every process below ``pid``: children, their children, and so on."""
+    parents = _parents()
+    found, frontier = set(), {pid}
+    while frontier:
+        frontier = {child for child, parent in parents.items() if parent in frontier}
+        found |= frontier
     return found

@@ -24,7 +24,7 @@ from click.testing import CliRunner
 from moju_cli.service_commands import _parse_param, submit, worker
 from moju_core.datasets import make_sequence
 from moju_core.io import Measurements, write_measurements
-from service.processes import free_port
+from service.processes import descendants, free_port
 from worker.runner import INTERRUPTED
 
 REPO = Path(__file__).resolve().parents[2]
@@ -44,23 +44,6 @@ def service_environment() -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("MOJU_")}
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
     return env
-
-
-def descendants(pid: int) -> set[int]:
-    """Every process below ``pid`` (Linux /proc)."""
-    parents: dict[int, int] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[-1].split()
-            except OSError:
-                continue
-            parents[int(entry.name)] = int(fields[1])
-    found, frontier = set(), {pid}
-    while frontier:
-        frontier = {child for child, parent in parents.items() if parent in frontier}
-        found |= frontier
-    return found
 
 
 def alive(pid: int) -> bool:
