@@ -9,7 +9,12 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import time
 
+from redis import Redis
+from redis.exceptions import ConnectionError as RedisConnectionError
+from redis.exceptions import TimeoutError as RedisTimeoutError
 from rq import Queue, Worker
 from rq.job import Job as RQJob
 
@@ -20,6 +25,11 @@ from service.queueing import job_id_of_rq_job, job_queue
 from service.settings import Settings, get_settings
 
 logger = logging.getLogger(__name__)
+
+#: Errors by which a Redis that went away shows itself.
+REDIS_DOWN = (RedisConnectionError, RedisTimeoutError)
+#: Longest pause between two attempts to reach a Redis that went away (seconds).
+MAX_RECONNECT_PAUSE = 5.0
 
 INTERRUPTED = (
     "the worker running this job was shut down before the job ended (service stopped or "
@@ -41,6 +51,10 @@ class MojuWorker(Worker):
         """Run one job in a work horse, noting the job if a shutdown interrupts it."""
         try:
             super().execute_job(job, queue)
+        except REDIS_DOWN:
+            # Redis went away (e.g. during RQ's bookkeeping after the job): not a shutdown;
+            # the job's own record says how far it got, and run_worker reconnects.
+            raise
         except BaseException:
             self.interrupted_job_id = job.id
             raise
@@ -54,10 +68,31 @@ def _record_interruption(worker: MojuWorker, settings: Settings) -> None:
     if job_id is None:  # not one of ours (someone else's job on our queue)
         return
     store = JobStore(worker.connection, retention_seconds=settings.result_ttl)
-    if store.rq_job_of(job_id) != rq_id:
-        return  # an attempt that had been given up already; another one holds the job
-    if store.fail(job_id, INTERRUPTED):
-        logger.warning("job %s: interrupted by the worker's shutdown", job_id)
+    try:
+        if store.rq_job_of(job_id) != rq_id:
+            return  # an attempt that had been given up already; another one holds the job
+        if store.fail(job_id, INTERRUPTED):
+            logger.warning("job %s: interrupted by the worker's shutdown", job_id)
+    except REDIS_DOWN as exc:  # the watchdog will find the job without a lease instead
+        logger.warning("job %s: interruption not recorded, Redis is unreachable (%s)", job_id, exc)
+
+
+def _wait_for_redis(connection: Redis) -> None:
+    """Block until Redis answers again, with growing pauses (at most MAX_RECONNECT_PAUSE).
+
+    RQ's signal handlers only set flags that its own loop reads; outside that loop the
+    defaults are restored, so that Ctrl-C or SIGTERM stops a worker waiting for Redis.
+    """
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    pause = 0.25
+    while True:
+        try:
+            connection.ping()
+            return
+        except REDIS_DOWN:
+            time.sleep(pause)
+            pause = min(2.0 * pause, MAX_RECONNECT_PAUSE)
 
 
 def run_worker(*, burst: bool = False, name: str | None = None) -> bool:
@@ -84,13 +119,26 @@ def run_worker(*, burst: bool = False, name: str | None = None) -> bool:
     connection = connect_redis(settings.require_redis_url())
     import moju_core.solver  # noqa: F401 - preloaded so that forked work horses share it
 
-    worker = MojuWorker(
-        [job_queue(connection, settings)],
-        connection=connection,
-        name=name,
-        default_result_ttl=settings.result_ttl,
-    )
-    try:
-        return worker.work(burst=burst, logging_level="INFO")
-    finally:
-        _record_interruption(worker, settings)
+    ran_jobs = False
+    while True:
+        worker = MojuWorker(
+            [job_queue(connection, settings)],
+            connection=connection,
+            name=name,
+            default_result_ttl=settings.result_ttl,
+        )
+        try:
+            return worker.work(burst=burst, logging_level="INFO") or ran_jobs
+        except REDIS_DOWN as exc:
+            # RQ lets a connection error that hits its bookkeeping (between jobs, or right
+            # after one) end the worker; a Redis restart must not take the workers with it.
+            logger.warning("worker: Redis went away (%s); waiting for it to come back", exc)
+            ran_jobs = ran_jobs or worker.successful_job_count + worker.failed_job_count > 0
+            _wait_for_redis(connection)
+            try:
+                worker.register_death()  # so that the same name can register again
+            except REDIS_DOWN:
+                pass
+            logger.info("worker: Redis is back; taking jobs again")
+        finally:
+            _record_interruption(worker, settings)
