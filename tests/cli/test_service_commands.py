@@ -19,6 +19,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
+from api_thread import serving
 from click.testing import CliRunner
 
 from moju_cli.service_commands import _parse_param, submit, worker
@@ -244,31 +245,18 @@ def test_api_key_makes_a_key_and_its_entry() -> None:
 
 
 def test_submit_sends_the_api_key(redis_url: str, tmp_path: Path, monkeypatch) -> None:
-    import threading
-
-    import uvicorn
     from pydantic import SecretStr
 
-    from service.app import create_app
     from service.auth import key_digest
     from service.settings import Settings
 
     key = "cli-test-key-0123456789abcdef"
     settings = Settings(redis_url=redis_url, data_dir=tmp_path / "data", cleanup_interval=0)
     settings = settings.model_copy(update={"api_keys": SecretStr(f"sha256:{key_digest(key)}")})
-    port = free_port()
-    server = uvicorn.Server(
-        uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning")
-    )
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    while not server.started:
-        time.sleep(0.02)
-    try:
+    with serving(settings) as url:
         path = write_measurements(
             tmp_path / "w.npz", Measurements(W=make_sequence("face1", n_points=50).W)
         )
-        url = f"http://127.0.0.1:{port}"
         monkeypatch.delenv("MOJU_API_KEY", raising=False)
         refused = CliRunner().invoke(submit, [str(path), "--server", url])
         assert refused.exit_code == 1
@@ -278,6 +266,3 @@ def test_submit_sends_the_api_key(redis_url: str, tmp_path: Path, monkeypatch) -
         assert accepted.exit_code == 0, accepted.output
         assert "queued (10 frames x 50 points)" in accepted.output
         assert key not in accepted.output
-    finally:
-        server.should_exit = True
-        thread.join(timeout=15)

@@ -6,13 +6,11 @@ and a temporary data directory. Helpers live in ``service_testing.py``.
 
 from __future__ import annotations
 
-import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import uvicorn
+from api_thread import serving
 from fastapi.testclient import TestClient
 from redis import Redis
 from service_testing import WorkerProcess, measurements_of, running_worker
@@ -20,7 +18,6 @@ from service_testing import WorkerProcess, measurements_of, running_worker
 from moju_core.datasets import Sequence, make_sequence
 from moju_core.io import write_measurements
 from service.app import create_app
-from service.processes import free_port
 from service.settings import Settings
 
 
@@ -73,18 +70,5 @@ def worker(settings: Settings, tmp_path: Path) -> Iterator[WorkerProcess]:
 @pytest.fixture
 def live_api(settings: Settings) -> Iterator[str]:
     """The API served by uvicorn over real sockets (in a thread); yields its base URL."""
-    port = free_port()
-    config = uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning")
-    server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        if not thread.is_alive() or time.monotonic() > deadline:
-            raise RuntimeError("uvicorn did not start")
-        time.sleep(0.02)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(timeout=15)
+    with serving(settings) as url:
+        yield url

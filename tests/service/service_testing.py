@@ -72,7 +72,6 @@ def worker_environment(settings: Settings, **extra: str) -> dict[str, str]:
     return env
 
 
-
 @contextlib.contextmanager
 def running_worker(settings: Settings, log_path: Path, **env: str) -> Iterator[WorkerProcess]:
     """A real RQ worker process (forking work horses), registered before this yields."""

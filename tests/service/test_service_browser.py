@@ -340,60 +340,43 @@ def test_the_page_works_with_an_api_key(
 ) -> None:
     """A server with keys: the page asks for one, then submits, follows (by polling),
     downloads and views with it."""
-    import threading
-
-    import uvicorn
+    from api_thread import serving
     from pydantic import SecretStr
     from service_testing import running_worker
 
-    from service.app import create_app
     from service.auth import key_digest
-    from service.processes import free_port
 
     key = "browser-key-0123456789abcdef"
     keyed = settings.model_copy(update={"api_keys": SecretStr(f"sha256:{key_digest(key)}")})
-    port = free_port()
-    server = uvicorn.Server(
-        uvicorn.Config(create_app(keyed), host="127.0.0.1", port=port, log_level="warning")
-    )
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    while not server.started:
-        time.sleep(0.02)
-    base = f"http://127.0.0.1:{port}"
     page = watched.page
-    try:
-        with running_worker(keyed, tmp_path / "worker.log"):
-            page.goto(base + "/")
-            page.wait_for_selector("#jobs-error:has-text('this server needs an API key')")
-            page.fill("#api-key", key)
-            page.dispatch_event("#api-key", "change")
-            page.wait_for_selector("#jobs-error", state="hidden")
-            page.wait_for_selector("#method option[value=moju]", state="attached")
-            page.set_input_files("#file", str(input_file))
-            page.fill("#max_iter", "30")
-            page.click("#submit-button")
-            page.wait_for_selector("#submit-status:has-text('submitted job')")
-            job_id = page.locator("#submit-status").text_content().removeprefix("submitted job ")
-            row = f'tr[data-job-id="{job_id}"]'
-            page.wait_for_selector(f'{row}[data-status="finished"]', timeout=60_000)
+    with serving(keyed) as base, running_worker(keyed, tmp_path / "worker.log"):
+        page.goto(base + "/")
+        page.wait_for_selector("#jobs-error:has-text('this server needs an API key')")
+        page.fill("#api-key", key)
+        page.dispatch_event("#api-key", "change")
+        page.wait_for_selector("#jobs-error", state="hidden")
+        page.wait_for_selector("#method option[value=moju]", state="attached")
+        page.set_input_files("#file", str(input_file))
+        page.fill("#max_iter", "30")
+        page.click("#submit-button")
+        page.wait_for_selector("#submit-status:has-text('submitted job')")
+        job_id = page.locator("#submit-status").text_content().removeprefix("submitted job ")
+        row = f'tr[data-job-id="{job_id}"]'
+        page.wait_for_selector(f'{row}[data-status="finished"]', timeout=60_000)
 
-            with page.expect_download() as download:
-                page.click(f"{row} a.download:has-text('npz')")
-            saved = tmp_path / "result.npz"
-            download.value.save_as(saved)
-            assert saved.read_bytes()[:2] == b"PK"
-            assert download.value.suggested_filename == f"moju-{job_id}.npz"
+        with page.expect_download() as download:
+            page.click(f"{row} a.download:has-text('npz')")
+        saved = tmp_path / "result.npz"
+        download.value.save_as(saved)
+        assert saved.read_bytes()[:2] == b"PK"
+        assert download.value.suggested_filename == f"moju-{job_id}.npz"
 
-            page.click(f"{row} button.view")
-            page.wait_for_selector('#viewer-container[data-rendered-frame="0"]')
-            assert scene_points(page)["count"] == 300
-            # The key stays in the tab, never in an address.
-            assert page.evaluate("sessionStorage.getItem('moju-api-key')") == key
-            assert key not in page.url
-    finally:
-        server.should_exit = True
-        thread.join(timeout=15)
+        page.click(f"{row} button.view")
+        page.wait_for_selector('#viewer-container[data-rendered-frame="0"]')
+        assert scene_points(page)["count"] == 300
+        # The key stays in the tab, never in an address.
+        assert page.evaluate("sessionStorage.getItem('moju-api-key')") == key
+        assert key not in page.url
     # Only the refusals before the key was given (401) reached the console.
     unexpected = [
         text
