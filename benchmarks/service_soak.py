@@ -260,7 +260,6 @@ class Service:
         self.redis.stop()
 
 
-
 def current_job(log_path: Path) -> str | None:
     """The job a worker started last, from its log ("job <id>: started (attempt n, ...")."""
     found = re.findall(

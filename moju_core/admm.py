@@ -127,7 +127,7 @@ def run(
     coefficients = np.zeros((n_groups, n_groups))  # C
     aux = np.zeros_like(coefficients)  # Z
     mult_coef = np.zeros_like(coefficients)  # L2
-    gamma = np.zeros_like(coefficients)
+    kernel = lrr.kernel_eigh(np.zeros_like(coefficients))  # Gamma, set by the first regrouping
     bases = None
     d_low = min(params.low_dim, 3 * n_frames)
     delta = jump.initial_map(3 * n_frames, d_low, rng)
@@ -179,9 +179,10 @@ def run(
                 # sdg: the kernel of the high-dimensional points themselves.
                 gamma = grassmann.projection_kernel(bases)
             gamma = gamma + 1e-10 * np.trace(gamma) / n_groups * np.eye(n_groups)
+            kernel = lrr.kernel_eigh(gamma)
         if adaptive:
             # 7. LRR coefficients (every iteration, with the kernel of the last regrouping).
-            coefficients = lrr.coefficient_step(gamma, aux, mult_coef, params.beta1, rho)
+            coefficients = lrr.coefficient_step(kernel, aux, mult_coef, params.beta1, rho)
         if regroup_now:
             if clusters_enabled:
                 # 8. Cluster the Grassmann points, move trajectories between groups.

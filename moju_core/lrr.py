@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 
 def singular_value_threshold(
@@ -11,12 +10,14 @@ def singular_value_threshold(
 ) -> tuple[np.ndarray, float]:
     """Proximal operator of ``tau ||.||_*``: ``U max(Sigma - tau, 0) V^T`` (Algorithm 1, 10-11).
 
-    ``argmin_Y tau ||Y||_* + 0.5 ||Y - X||_F^2``. Wide matrices (rows much fewer than columns,
-    like ``S#`` of shape (F, 3P)) go through the Gram matrix ``X X^T``: with ``X X^T = U L U^T``
-    the result is ``U_r diag(max(s - tau, 0) / s) U_r^T X`` over the r singular values above
-    tau, so only an (F, F) eigenproblem and products with r rows are needed. The Gram route
-    loses accuracy only on singular values below about ``sqrt(eps) * s_max``; those are shrunk
-    to zero unless tau is below that level.
+    ``argmin_Y tau ||Y||_* + 0.5 ||Y - X||_F^2``, computed through the Gram matrix of the
+    shorter side. For a wide X (like ``S#`` of shape (F, 3P)), with ``X X^T = U L U^T`` the
+    result is ``U_r diag(max(s - tau, 0) / s) U_r^T X`` over the r singular values above tau,
+    so only an (F, F) eigenproblem and products with r rows are needed; a tall X uses
+    ``X^T X`` the same way from the right. Even for a square X (the LRR matrix Z, K x K) the
+    symmetric eigenproblem costs half an SVD (0.05 s against 0.10 s at K = 600, one thread).
+    The Gram route loses accuracy only on singular values below about ``sqrt(eps) * s_max``;
+    those are shrunk to zero unless tau is below that level.
 
     Parameters
     ----------
@@ -33,37 +34,59 @@ def singular_value_threshold(
         ``||y||_*``.
     """
     m, n = x.shape
-    if 4 * m <= n:
-        gram = x @ x.T
-        values, vectors = np.linalg.eigh(gram)
-        s = np.sqrt(np.clip(values, 0.0, None))
-        shrunk = np.clip(s - tau, 0.0, None)
-        keep = shrunk > 0
-        # Only the r surviving directions are applied: O(r m n) instead of O(m^2 n).
-        kept = vectors[:, keep]
-        y = np.matmul(kept * (shrunk[keep] / s[keep]), kept.T @ x, out=out)
-        return y, float(shrunk.sum())
-    u, s, vt = np.linalg.svd(x, full_matrices=False)
+    wide = m <= n
+    values, vectors = np.linalg.eigh(x @ x.T if wide else x.T @ x)
+    s = np.sqrt(np.clip(values, 0.0, None))
     shrunk = np.clip(s - tau, 0.0, None)
     keep = shrunk > 0
-    y = np.matmul(u[:, keep] * shrunk[keep], vt[keep], out=out)
+    # Only the r surviving directions are applied: O(r m n) instead of O(m n min(m, n)).
+    kept = vectors[:, keep]
+    if wide:
+        y = np.matmul(kept * (shrunk[keep] / s[keep]), kept.T @ x, out=out)
+    else:
+        y = np.matmul(x @ kept, (kept * (shrunk[keep] / s[keep])).T, out=out)
     return y, float(shrunk.sum())
 
 
+def kernel_eigh(gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigendecomposition ``Gamma = V diag(lambda) V^T`` of a symmetric PSD kernel (K x K).
+
+    The C-step's system matrix ``2 beta1 Gamma + rho I`` changes with rho every iteration,
+    but Gamma only when the grouping steps run; with this decomposition every C-step is two
+    K x K products instead of a Cholesky factorisation and solve.
+
+    Returns
+    -------
+    values : ndarray of shape (K,)
+        Eigenvalues, clipped at 0 (rounding can make the smallest slightly negative).
+    vectors : ndarray of shape (K, K)
+        Orthonormal eigenvectors.
+    """
+    values, vectors = np.linalg.eigh(gamma)
+    return np.clip(values, 0.0, None), vectors
+
+
 def coefficient_step(
-    gamma: np.ndarray, z: np.ndarray, multiplier: np.ndarray, beta1: float, rho: float
+    kernel: tuple[np.ndarray, np.ndarray],
+    z: np.ndarray,
+    multiplier: np.ndarray,
+    beta1: float,
+    rho: float,
 ) -> np.ndarray:
     """C-step of LRR on the Grassmann manifold (Algorithm 1, step 7).
 
     Minimises ``beta1 ||chi - chi C||^2 + <L2, C - Z> + rho/2 ||C - Z||_F^2`` where, through the
     kernel, ``||chi - chi C||^2 = tr(Gamma) - 2 tr(Gamma C) + tr(C^T Gamma C)``. Setting the
     gradient to zero gives the linear system ``(2 beta1 Gamma + rho I) C = 2 beta1 Gamma +
-    rho Z - L2``, solved by Cholesky (the matrix is symmetric positive definite for rho > 0).
+    rho Z - L2``; with ``Gamma = V diag(lambda) V^T`` its solution is
+    ``C = V [diag(2 beta1 lambda / d) V^T + diag(1 / d) V^T (rho Z - L2)]`` with
+    ``d = 2 beta1 lambda + rho > 0``.
 
     Parameters
     ----------
-    gamma : ndarray of shape (K, K)
-        PSD kernel of the Grassmann points.
+    kernel : (ndarray of shape (K,), ndarray of shape (K, K))
+        Eigendecomposition of the PSD kernel Gamma of the Grassmann points
+        (:func:`kernel_eigh`).
     z : ndarray of shape (K, K)
         Auxiliary copy of C (the nuclear-norm variable).
     multiplier : ndarray of shape (K, K)
@@ -75,7 +98,10 @@ def coefficient_step(
     -------
     ndarray of shape (K, K)
     """
-    k = gamma.shape[0]
-    lhs = 2.0 * beta1 * gamma + rho * np.eye(k)
-    rhs = 2.0 * beta1 * gamma + rho * z - multiplier
-    return scipy.linalg.cho_solve(scipy.linalg.cho_factor(lhs), rhs)
+    values, vectors = kernel
+    weighted = 2.0 * beta1 * values
+    denominator = weighted + rho
+    inner = vectors.T @ (rho * z - multiplier)
+    inner /= denominator[:, None]
+    inner += (weighted / denominator)[:, None] * vectors.T
+    return vectors @ inner

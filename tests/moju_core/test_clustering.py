@@ -15,6 +15,22 @@ def test_initial_labels_respect_the_minimum_size():
     assert_array_equal(np.unique(labels), np.arange(len(sizes)))
 
 
+def test_initial_labels_fitted_on_a_sample_still_label_every_track(monkeypatch):
+    # 4 well separated blobs of 300 tracks; a sample of 10 per group (40 tracks) fits the
+    # centres, and every track must join its own blob's group, the same for the same seed.
+    monkeypatch.setattr(clustering, "KMEANS_SAMPLE_PER_GROUP", 10)
+    rng = np.random.default_rng(0)
+    centres = np.array([[0.0, 0.0], [50.0, 0.0], [0.0, 50.0], [50.0, 50.0]])
+    truth = np.repeat(np.arange(4), 300)
+    features = centres[truth] + rng.normal(0, 1, (1200, 2))
+    labels = clustering.initial_labels(features, n_groups=4, min_size=10, seed=3)
+    assert len(labels) == 1200
+    # One label per blob and one blob per label (a permutation of the truth).
+    pairs = set(zip(truth.tolist(), labels.tolist(), strict=True))
+    assert len(pairs) == 4 and len({b for _, b in pairs}) == 4
+    assert_array_equal(labels, clustering.initial_labels(features, 4, 10, seed=3))
+
+
 def test_neighbour_edges_are_symmetric_nearest_neighbours():
     centroids = np.array([[0.0], [1.0], [2.5], [10.0], [11.0]])
     edges = clustering.neighbour_edges(centroids, 1)

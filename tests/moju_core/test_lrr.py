@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from moju_core.lrr import coefficient_step, singular_value_threshold
+from moju_core.lrr import coefficient_step, kernel_eigh, singular_value_threshold
 
 
 def _prox_objective(y, x, tau):
     return tau * np.linalg.svd(y, compute_uv=False).sum() + 0.5 * np.linalg.norm(y - x) ** 2
 
 
-@pytest.mark.parametrize("shape", [(6, 40), (15, 15), (40, 6)])  # Gram route and full SVD
+@pytest.mark.parametrize("shape", [(6, 40), (15, 15), (40, 6)])  # wide, square and tall
 def test_svt_matches_shrunk_svd(shape):
     rng = np.random.default_rng(0)
     x = rng.standard_normal(shape)
@@ -50,7 +50,7 @@ def test_coefficient_step_satisfies_its_optimality_condition():
     z = rng.standard_normal((8, 8))
     multiplier = rng.standard_normal((8, 8))
     beta1, rho = 0.7, 0.3
-    c = coefficient_step(gamma, z, multiplier, beta1, rho)
+    c = coefficient_step(kernel_eigh(gamma), z, multiplier, beta1, rho)
     # Gradient of beta1 (tr G - 2 tr(G C) + tr(C^T G C)) + <L2, C - Z> + rho/2 ||C - Z||^2.
     gradient = beta1 * (-2 * gamma + 2 * gamma @ c) + multiplier + rho * (c - z)
     assert_allclose(gradient, 0.0, atol=1e-10)
@@ -67,6 +67,6 @@ def test_coefficient_step_minimises_the_augmented_objective():
         lrr = np.trace(gamma) - 2 * np.trace(gamma @ c) + np.trace(c.T @ gamma @ c)
         return beta1 * lrr + np.sum(multiplier * (c - z)) + rho / 2 * np.linalg.norm(c - z) ** 2
 
-    c = coefficient_step(gamma, z, multiplier, beta1, rho)
+    c = coefficient_step(kernel_eigh(gamma), z, multiplier, beta1, rho)
     for _ in range(100):
         assert objective(c + 1e-3 * rng.standard_normal(c.shape)) > objective(c)
