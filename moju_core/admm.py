@@ -14,14 +14,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from moju_core import camera, clustering, grassmann, jump, lrr
+from moju_core import camera, clustering, grassmann, jump, lrr, temporal_prior
 from moju_core.defaults import (
     GAP_PRECISION,
+    ROTATION_REFINE_RHO,
     SETTLED_MOVE_FRACTION,
     STALL_ITERATIONS,
     min_group_size,
 )
 from moju_core.params import SolverParams
+from moju_core.rotations import fit_rotations_to_shapes
 
 #: Called once per iteration with (iteration, gap, rho); returning True stops the loop.
 IterationHook = Callable[[int, float, float], bool]
@@ -34,9 +36,11 @@ class LoopOutput:
     shapes : ndarray of shape (F, 3, P) in the input's point order.
     labels : ndarray of shape (P,) group of every point (input order).
     history : per-iteration diagnostics (see :class:`moju_core.result.Result`).
+    rotations : ndarray of shape (F, 2, 3), the rotations at the end (refined or as given).
     """
 
     shapes: np.ndarray
+    rotations: np.ndarray
     labels: np.ndarray
     history: dict[str, np.ndarray]
     n_iter: int
@@ -65,6 +69,7 @@ def run(
     *,
     features: np.ndarray | None = None,
     hook: IterationHook | None = None,
+    refine_rotations: bool = False,
 ) -> LoopOutput:
     """Run Algorithm 1 on scale-normalised, centred tracks with given rotations.
 
@@ -75,12 +80,18 @@ def run(
     rotations : ndarray of shape (F, 2, 3)
         Camera rotations (rows orthonormal).
     params : SolverParams
-        Fully resolved parameters (:func:`moju_core.defaults.resolve`).
+        Fully resolved parameters (:func:`moju_core.defaults.resolve`), ``smoothness`` and
+        ``free_mean_shape`` included.
     features : ndarray of shape (P, c), optional
         Track coordinates used for the initial k-means++ groups and the spatial neighbour
         graph (:func:`moju_core.clustering.track_features`); computed when omitted.
     hook : callable, optional
         ``hook(iteration, gap, rho) -> bool``; True stops the loop (``stop_reason="stopped"``).
+    refine_rotations : bool, default False
+        Refine the rotations with the shapes: while ``rho < ROTATION_REFINE_RHO``, every
+        iteration fits them to the current low-rank shapes ``S#``
+        (:func:`moju_core.rotations.fit_rotations_to_shapes`), an alternating minimisation
+        of the data term over R. For approximate rotations (the windowed estimate).
 
     Returns
     -------
@@ -96,6 +107,11 @@ def run(
 
     back_projected = camera.back_project(rotations, tracks)
     normals = camera.viewing_directions(rotations)
+    prior = (
+        temporal_prior.temporal_prior(n_frames, params.smoothness) if params.smoothness else None
+    )
+    # The truncated nuclear norm: with free_mean_shape the top singular value is not shrunk.
+    kept_values = 1 if params.free_mean_shape else 0
     shapes = back_projected.copy()  # S = pinv(R) W
     sharp = shapes.reshape(n_frames, 3 * n_points).copy()  # S# = f(S)
     # The multiplier L1 is stored scaled, ``scaled = L1 / rho``: both places it enters (the
@@ -156,9 +172,18 @@ def run(
         # iteration costs more in page faults than the arithmetic on them.
         # 1. S-update: data term + coupling to S#.
         np.add(sharp, scaled, out=work)
-        camera.data_step(
-            back_projected, normals, work.reshape(n_frames, 3, n_points), rho, out=shapes
-        )
+        target = work.reshape(n_frames, 3, n_points)
+        if prior is None:
+            camera.data_step(back_projected, normals, target, rho, out=shapes)
+        else:
+            temporal_prior.smooth_data_step(back_projected, normals, target, rho, prior, shapes)
+        if refine_rotations and iteration > 1 and rho < ROTATION_REFINE_RHO:
+            # Alternate: the rotations that best project the current low-rank shapes.
+            rotations = fit_rotations_to_shapes(
+                rotations, tracks, sharp.reshape(n_frames, 3, n_points)
+            )
+            back_projected = camera.back_project(rotations, tracks)
+            normals = camera.viewing_directions(rotations)
         trajectories = shapes.reshape(3 * n_frames, n_points)
         relabelled = 0
         # The first iteration always regroups, so the bases exist before they are tracked.
@@ -223,7 +248,9 @@ def run(
         shape_form = shapes.reshape(n_frames, 3 * n_points)
         # 10. S#-update: singular value thresholding.
         np.subtract(shape_form, scaled, out=work)
-        _, nuclear = lrr.singular_value_threshold(work, params.beta2 / rho, out=sharp)
+        _, nuclear = lrr.singular_value_threshold(
+            work, params.beta2 / rho, out=sharp, keep=kept_values
+        )
         # 11. Z-update.
         if adaptive:
             aux, _ = lrr.singular_value_threshold(
@@ -284,6 +311,7 @@ def run(
     inverse[order] = np.arange(n_points)
     return LoopOutput(
         shapes=_permute(shapes, inverse),
+        rotations=rotations,
         labels=labels[inverse],
         history={key: np.asarray(values) for key, values in history.items()},
         n_iter=iteration,

@@ -12,7 +12,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 Method = Literal["moju", "sdg", "bmm", "pta"]
-RotationMethod = Literal["intersection", "rigid", "known"]
+RotationMethod = Literal["auto", "intersection", "windowed", "rigid", "known"]
 Grouping = Literal["adaptive", "fixed"]
 
 
@@ -37,10 +37,14 @@ class SolverParams(BaseModel):
         ),
     )
     rotations: RotationMethod = Field(
-        "intersection",
+        "auto",
         description=(
             "How camera rotations are obtained: 'intersection' (Dai et al.'s method), "
-            "'rigid' (Tomasi-Kanade with metric upgrade) or 'known' (supplied with the input)."
+            "'windowed' (rigid factorisations of short windows of frames, chained, then "
+            "refined with the shapes; for a camera that turns fast relative to the "
+            "deformation), 'auto' (intersection, unless the windowed rotations explain the "
+            "tracks as nearly rigid over every three frames far better), 'rigid' "
+            "(Tomasi-Kanade with metric upgrade) or 'known' (supplied with the input)."
         ),
     )
     n_bases: int | None = Field(
@@ -82,6 +86,26 @@ class SolverParams(BaseModel):
     )
     beta3: float | None = Field(
         None, gt=0, le=1e6, description="Weight of the nuclear norm of the coefficients Z."
+    )
+    smoothness: float | None = Field(
+        None,
+        ge=0,
+        le=1e6,
+        description=(
+            "Weight gamma of the temporal smoothness prior gamma/2 ||D S||^2 on the second "
+            "differences of every 3D trajectory along the frames, relative to the data term "
+            "of the scale-normalised tracks. Unset: 'moju' and 'sdg' choose it from the data "
+            "(the largest weight the tracks do not contradict), 'bmm' uses 0. 0 turns it off "
+            "(the paper's loop). Ignored by 'pta'."
+        ),
+    )
+    free_mean_shape: bool | None = Field(
+        None,
+        description=(
+            "Leave the largest singular value of S# (the mean shape) out of the nuclear norm, "
+            "so that only the deformation is penalised. Unset: true for 'moju' and 'sdg', "
+            "false for 'bmm' (Dai et al. penalise all of S#). Ignored by 'pta'."
+        ),
     )
     trajectory_bases: int | None = Field(
         None,

@@ -47,10 +47,14 @@ from moju_core.errors import MeasurementError
 __all__ = [
     "choose_n_bases",
     "estimate_rotations",
+    "fit_rotations_to_shapes",
     "intersection_rotations",
     "min_frames_for_bases",
+    "noise_variance",
     "project_to_stiefel",
+    "rigid_from_factor",
     "rigid_rotations",
+    "significant_rank",
 ]
 
 RotationEstimator = Literal["intersection", "rigid"]
@@ -294,8 +298,22 @@ def _gavish_donoho_threshold(s: np.ndarray, aspect: float) -> float:
     return float(omega * np.median(s))
 
 
-def _significant_rank(s: np.ndarray, shape: tuple[int, int]) -> int:
-    """Number of singular values of W above the noise (step 1 of :func:`choose_n_bases`)."""
+def significant_rank(s: np.ndarray, shape: tuple[int, int]) -> int:
+    """Number of singular values of W above the noise (step 1 of :func:`choose_n_bases`).
+
+    Parameters
+    ----------
+    s : ndarray
+        Singular values of W, decreasing.
+    shape : (int, int)
+        Shape of W.
+
+    Returns
+    -------
+    int
+        How many exceed both the Gavish-Donoho threshold for unknown white noise and
+        ``1e-6 s_1`` (below which the Gram route does not resolve them).
+    """
     if s.size == 0 or s[0] <= 0.0:
         return 0
     threshold = max(_gavish_donoho_threshold(s, shape[0] / shape[1]), _RANK_FLOOR * s[0])
@@ -305,7 +323,7 @@ def _significant_rank(s: np.ndarray, shape: tuple[int, int]) -> int:
 def _n_bases_from_spectrum(s: np.ndarray, shape: tuple[int, int], max_bases: int) -> int:
     """The rule of :func:`choose_n_bases` applied to given singular values (decreasing)."""
     n_rows, n_points = shape
-    n_bases = math.ceil(_significant_rank(s, shape) / 3)
+    n_bases = math.ceil(significant_rank(s, shape) / 3)
     # Bounds: enough frames for the intersection constraints, enough points for the rank.
     by_frames = max(k for k in range(1, max_bases + 1) if min_frames_for_bases(k) <= n_rows // 2)
     by_points = (n_points - 1) // 3
@@ -378,39 +396,57 @@ def _metric_constraints(Pi: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    Pi : ndarray of shape (2F, n)
+    Pi : ndarray of shape (..., 2F, n)
+        One motion factor or a stack of them.
 
     Returns
     -------
-    ndarray of shape (2F, n (n + 1) / 2)
+    ndarray of shape (..., 2F, n (n + 1) / 2)
         Rows 2f (equal norms) and 2f + 1 (orthogonality) belong to frame f.
     """
-    a, b = Pi[0::2], Pi[1::2]
-    equal_norms = np.einsum("fi,fj->fij", a, a) - np.einsum("fi,fj->fij", b, b)
-    orthogonal = np.einsum("fi,fj->fij", a, b)
-    orthogonal = 0.5 * (orthogonal + orthogonal.transpose(0, 2, 1))
-    rows = np.stack([_svec(equal_norms), _svec(orthogonal)], axis=1)
-    return rows.reshape(-1, rows.shape[-1])
+    a, b = Pi[..., 0::2, :], Pi[..., 1::2, :]
+    equal_norms = np.einsum("...fi,...fj->...fij", a, a) - np.einsum("...fi,...fj->...fij", b, b)
+    orthogonal = np.einsum("...fi,...fj->...fij", a, b)
+    orthogonal = 0.5 * (orthogonal + np.swapaxes(orthogonal, -1, -2))
+    rows = np.stack([_svec(equal_norms), _svec(orthogonal)], axis=-2)
+    return rows.reshape(*Pi.shape[:-1], rows.shape[-1])
 
 
-def _rigid_from_factor(M: np.ndarray) -> np.ndarray:
-    """Metric upgrade of a rank-3 motion factor M (2F x 3) into rotations (F, 2, 3)."""
-    constraints = _metric_constraints(M)
+def rigid_from_factor(M: np.ndarray) -> np.ndarray:
+    """Metric upgrade of rank-3 motion factors into rotations.
+
+    The corrective Q = G G^T solves the orthonormality constraints of every frame in the
+    least-squares sense (see :func:`rigid_rotations`).
+
+    Parameters
+    ----------
+    M : ndarray of shape (2F, 3) or (B, 2F, 3)
+        One motion factor, or a stack of B (e.g. one per window of frames).
+
+    Returns
+    -------
+    ndarray of shape (F, 2, 3) or (B, F, 2, 3)
+    """
+    stacked = M if M.ndim == 3 else M[None]
+    constraints = _metric_constraints(stacked)
     # Homogeneous least squares: Q is the right singular vector of the smallest singular
     # value. No per-frame scale is imposed, so scaled-orthographic data (zoom) work as well.
     _, _, Vt = np.linalg.svd(constraints, full_matrices=False)
-    Q = _smat(Vt[-1], 3)
-    if np.trace(Q) < 0.0:
-        Q = -Q
+    rows, cols, weights = _svec_indices(3)
+    Q = np.zeros((stacked.shape[0], 3, 3))
+    Q[:, rows, cols] = Vt[:, -1] / weights
+    Q[:, cols, rows] = Vt[:, -1] / weights
+    Q *= np.where(np.trace(Q, axis1=1, axis2=2) < 0.0, -1.0, 1.0)[:, None, None]
     eigenvalues, eigenvectors = np.linalg.eigh(Q)
     # Eigen-clip: noise can make the least-squares Q slightly indefinite.
-    G = eigenvectors * np.sqrt(np.clip(eigenvalues, 0.0, None))
-    return project_to_stiefel((M @ G).reshape(-1, 2, 3))
+    G = eigenvectors * np.sqrt(np.clip(eigenvalues, 0.0, None))[:, None, :]
+    rotations = project_to_stiefel((stacked @ G).reshape(stacked.shape[0], -1, 2, 3))
+    return rotations if M.ndim == 3 else rotations[0]
 
 
 def _rigid_from_spectrum(spectrum: _Spectrum) -> np.ndarray:
     """Tomasi-Kanade rotations from the spectrum of W (motion factor ``U_3 S_3^{1/2}``)."""
-    return _rigid_from_factor(spectrum.left[:, :3] * np.sqrt(spectrum.singular[:3]))
+    return rigid_from_factor(spectrum.left[:, :3] * np.sqrt(spectrum.singular[:3]))
 
 
 def rigid_rotations(W: np.ndarray) -> np.ndarray:
@@ -722,6 +758,51 @@ def _refine_rotations(
     return rotations, misfit, eigenvalues
 
 
+def fit_rotations_to_shapes(
+    rotations: np.ndarray, tracks: np.ndarray, shapes: np.ndarray, iterations: int = 5
+) -> np.ndarray:
+    """Camera rotations that best project given 3D shapes onto the tracks, from a start.
+
+    Minimises ``sum_f ||W_f - R_f S_f||_F^2`` over rotations R_f with orthonormal rows (an
+    unbalanced orthogonal Procrustes problem per frame, without a closed form) by
+    Gauss-Newton steps on ``R_f exp(skew(w_f))``: with ``M_f = S_f S_f^T`` and
+    ``G_f = W_f S_f^T - R_f M_f`` the step solves ``H_f w_f = g_f`` with
+    ``H_ab = tr((R_f E_a)^T R_f E_b M_f)`` and ``g_a = <R_f E_a, G_f>`` (E_a the generators of
+    so(3)). The cost in the number of points is the two 3 x 3 and 2 x 3 products per frame.
+    Used by the ADMM loop to refine approximate rotations (the windowed estimate) with the
+    shapes (see :func:`moju_core.admm.run`).
+
+    Parameters
+    ----------
+    rotations : ndarray of shape (F, 2, 3)
+        Starting rotations (orthonormal rows).
+    tracks : ndarray of shape (F, 2, P)
+        Centred tracks W_f.
+    shapes : ndarray of shape (F, 3, P)
+        Shapes S_f.
+    iterations : int, default 5
+        Gauss-Newton steps (each frame's problem has 3 unknowns and converges in a few).
+
+    Returns
+    -------
+    ndarray of shape (F, 2, 3)
+        Rotations with orthonormal rows.
+    """
+    full = np.concatenate([rotations, np.cross(rotations[:, 0], rotations[:, 1])[:, None]], axis=1)
+    moments = np.einsum("fip,fjp->fij", shapes, shapes)  # M_f = S_f S_f^T, (F, 3, 3)
+    cross = np.einsum("fip,fjp->fij", tracks, shapes)  # W_f S_f^T, (F, 2, 3)
+    for _ in range(iterations):
+        R = full[:, :2]
+        directions = np.einsum("fij,ajk->faik", R, _GENERATORS)  # R_f E_a, (F, 3, 2, 3)
+        gradient = cross - R @ moments
+        g = np.einsum("faik,fik->fa", directions, gradient)
+        H = np.einsum("faik,fkl,fbil->fab", directions, moments, directions)
+        H += 1e-12 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+        step = np.linalg.solve(H, g[:, :, None])[:, :, 0]
+        full = full @ _exp_so3(step)[0]
+    return project_to_stiefel(full[:, :2])
+
+
 def _synchronise_signs(rotations: np.ndarray, W: np.ndarray, gram: np.ndarray | None) -> np.ndarray:
     """Flip frames so that their back-projected shapes agree with the dominant shape.
 
@@ -781,7 +862,7 @@ def _intersection_from_spectrum(
         n_bases = supported
     # Likewise for the directions that stand above the noise (the rule of choose_n_bases):
     # a triple in the noise cannot be fitted, and trying it only adds local minima.
-    significant = _significant_rank(s, W.shape)
+    significant = significant_rank(s, W.shape)
     supported = max(1, math.ceil(significant / 3))
     if n_bases > supported:
         warnings.warn(
@@ -819,6 +900,29 @@ def _noise_variance(s: np.ndarray, shape: tuple[int, int], rank: int) -> float:
     if rank >= m:
         return 0.0
     return float(np.sum(s[rank:m] ** 2) / ((m - rank) * (M - rank)))
+
+
+def noise_variance(singular_values: np.ndarray, shape: tuple[int, int]) -> float:
+    """Variance of white noise in the entries of a matrix, from its singular values.
+
+    The singular values above the Gavish-Donoho threshold are signal (the rule of
+    :func:`choose_n_bases`); the energy of the others is spread as white noise would spread
+    it (see :func:`_noise_variance`).
+
+    Parameters
+    ----------
+    singular_values : ndarray of shape (min(shape),)
+        Singular values of the matrix, decreasing.
+    shape : (int, int)
+        Its shape, e.g. (2F, P) for the measurements.
+
+    Returns
+    -------
+    float
+        sigma^2, in squared units of the entries (0 for noise-free low-rank data, up to
+        rounding).
+    """
+    return _noise_variance(singular_values, shape, significant_rank(singular_values, shape))
 
 
 def _relaxation_starts(Pi: np.ndarray, seed: int) -> tuple[list[np.ndarray] | None, np.ndarray]:
@@ -875,7 +979,7 @@ def _intersection_with(
     # rank-3K factorisation of Dai et al.
     exact_rank = int(np.count_nonzero(s > _RANK_FLOOR * s[0]))
     n_start = min(3 * n_bases, exact_rank)
-    n = min(max(_significant_rank(s, W.shape), n_start), exact_rank, _MAX_FIT_RANK)
+    n = min(max(significant_rank(s, W.shape), n_start), exact_rank, _MAX_FIT_RANK)
     # Everything below works on matrices of a few dozen rows and columns, where BLAS threads
     # only add synchronisation (on a loaded machine, 10x slower than one thread).
     with threadpool_limits(limits=1):

@@ -8,12 +8,13 @@ from collections.abc import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import __version__, admm, camera, clustering, defaults, pta
+from moju_core import __version__, admm, camera, cameras, clustering, defaults, pta
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams
 from moju_core.preprocessing import normalise
 from moju_core.result import Progress, Result
-from moju_core.rotations import choose_n_bases, estimate_rotations
+from moju_core.rotations import noise_variance, significant_rank
+from moju_core.smoothness import choose_smoothness
 from moju_core.validation import check_measurements, check_rotations
 
 #: ``callback(progress) -> bool | None``; returning True asks the solver to stop (it then
@@ -130,18 +131,27 @@ def _reconstruct(
         if rotations is None:
             raise MeasurementError(
                 "rotations='known' needs the camera rotations: pass rotations of shape "
-                f"({n_frames}, 2, 3), or choose rotations='intersection' to estimate them"
+                f"({n_frames}, 2, 3), or choose rotations='auto' to estimate them"
             )
         rotations = check_rotations(rotations, n_frames)
     centred, scale = normalise(W)
 
     report("rotations")
     tic = time.perf_counter()
-    n_bases = params.n_bases
-    if params.rotations != "known":
-        if params.rotations == "intersection" and n_bases is None:
-            n_bases = choose_n_bases(centred)
-        rotations = estimate_rotations(centred, params.rotations, n_bases=n_bases, seed=params.seed)
+    gram = centred @ centred.T  # (2F, 2F); small when P < 2F too
+    eigenvalues, left = np.linalg.eigh(gram)
+    singular = np.sqrt(np.clip(eigenvalues[::-1], 0.0, None))[: min(centred.shape)]
+    signal_basis = left[:, ::-1][:, : significant_rank(singular, centred.shape)]
+    # Relative to the mean square of the normalised tracks, which is 1.
+    noise = noise_variance(singular, centred.shape)
+    if params.rotations == "known":
+        estimate = cameras.CameraEstimate(rotations, "known")
+    else:
+        estimate = cameras.estimate_cameras(
+            centred, params.rotations, n_bases=params.n_bases, seed=params.seed, gram=gram
+        )
+        rotations = estimate.rotations
+    n_bases = estimate.n_bases if estimate.n_bases is not None else params.n_bases
     timings["rotations"] = time.perf_counter() - tic
 
     report("initialising")
@@ -154,6 +164,22 @@ def _reconstruct(
     params = params.model_copy(update={"n_bases": n_bases})
     _check_group_sizes(params, n_points)
     _check_trajectory_bases(params, n_frames)
+    smoothness_trials: list[tuple[float, float]] = []
+    if params.smoothness is None:
+
+        def trial_hook(iteration: int, gap: float, rho: float) -> bool:
+            report("initialising")  # raises Cancelled when the callback asks to stop
+            return False
+
+        weight, smoothness_trials = choose_smoothness(
+            tracks,
+            rotations,
+            params,
+            signal_basis,
+            refine_rotations=estimate.refine,
+            hook=trial_hook,
+        )
+        params = params.model_copy(update={"smoothness": weight})
     features = None
     if params.method not in ("bmm", "pta") and params.n_groups > 1:
         features = clustering.track_features(centred)
@@ -169,7 +195,14 @@ def _reconstruct(
     if params.method == "pta":
         out = _trajectory_basis(tracks, rotations, params, hook)
     else:
-        out = admm.run(tracks, rotations, params, features=features, hook=hook)
+        out = admm.run(
+            tracks,
+            rotations,
+            params,
+            features=features,
+            hook=hook,
+            refine_rotations=estimate.refine,
+        )
     timings["iterate"] = time.perf_counter() - tic
 
     report("finishing", out.n_iter)
@@ -178,7 +211,7 @@ def _reconstruct(
     timings["total"] = time.perf_counter() - start
     return Result(
         shapes=np.ascontiguousarray(shapes.transpose(0, 2, 1)),
-        rotations=rotations,
+        rotations=out.rotations,
         labels=out.labels,
         history={
             **out.history,
@@ -193,6 +226,12 @@ def _reconstruct(
         extras={
             "version": __version__,
             "n_groups_used": out.extras["n_groups"],
+            "rotation_source": estimate.source,
+            "rotation_window": estimate.window,
+            "rotations_refined": estimate.refine and params.method != "pta",
+            "rotation_rigidity": estimate.rigidity,
+            "noise_variance": noise * scale**2,
+            "smoothness_trials": smoothness_trials,
             **({"pta": out.extras["pta"]} if "pta" in out.extras else {}),
         },
     )
@@ -224,6 +263,7 @@ def _trajectory_basis(
     }
     return admm.LoopOutput(
         shapes=shapes,
+        rotations=rotations,
         labels=np.zeros(n_points, dtype=np.int64),
         history={key: np.array([value]) for key, value in history.items()},
         n_iter=1,

@@ -20,19 +20,21 @@ def _regroup_moving(count: int):
     def regroup(trajectories, labels, bases, group_clusters, min_size):
         calls["n"] += 1
         moved = labels.copy()
-        first = np.flatnonzero(labels == labels[0])[:count]
-        moved[first] = labels[-1]  # from the first group to the last: both stay large
+        sizes = np.bincount(labels)
+        largest = int(sizes.argmax())
+        # From the largest group to the next largest: both stay far above the minimum size.
+        moved[np.flatnonzero(labels == largest)[:count]] = int(np.argsort(sizes)[-2])
         return moved
 
     return regroup
 
 
-@pytest.mark.parametrize(("moving", "expected"), [(2, "converged"), (3, "rho_max")])
+@pytest.mark.parametrize(("moving", "expected"), [(20, "converged"), (21, "rho_max")])
 def test_a_few_endlessly_moving_trajectories_do_not_block_convergence(
     monkeypatch, moving: int, expected: str
 ) -> None:
     n_points = 2000
-    assert int(SETTLED_MOVE_FRACTION * n_points) == 2  # the threshold this test straddles
+    assert int(SETTLED_MOVE_FRACTION * n_points) == 20  # the threshold this test straddles
     data = make_sequence("face1", n_points=n_points, seed=3)
     monkeypatch.setattr(clustering, "regroup", _regroup_moving(moving))
     params = SolverParams(method="moju", rotations="known")
@@ -46,8 +48,11 @@ def test_a_gap_stalled_at_the_precision_of_the_svd_counts_as_converged() -> None
     # On this noisy sequence the shape gap bottoms out near 5e-10 around iteration 130 and then
     # rises with rho (the Gram-matrix SVD of the S# step is exact to ~1e-8 only): before the
     # stall rule the run went on to rho_max, 243 iterations, for the same e3D (0.0292).
+    # The paper's loop: no temporal prior, the whole nuclear norm (either changes where the gap
+    # ends up).
     data = make_sequence("face3", n_points=5000, noise=0.045)
-    result = reconstruct(data.W, SolverParams(rotations="known"), rotations=data.rotations)
+    params = SolverParams(rotations="known", smoothness=0.0, free_mean_shape=False)
+    result = reconstruct(data.W, params, rotations=data.rotations)
     gaps = result.history["gap_shape"]
     assert result.stop_reason == "converged"
     assert result.n_iter < 200

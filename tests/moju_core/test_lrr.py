@@ -70,3 +70,23 @@ def test_coefficient_step_minimises_the_augmented_objective():
     c = coefficient_step(kernel_eigh(gamma), z, multiplier, beta1, rho)
     for _ in range(100):
         assert objective(c + 1e-3 * rng.standard_normal(c.shape)) > objective(c)
+
+
+@pytest.mark.parametrize("keep", [1, 2])
+def test_svt_keeping_the_top_values_is_the_prox_of_the_partial_sum(keep):
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((6, 30))
+    tau = 1.2
+    y, nuclear = singular_value_threshold(x, tau, keep=keep)
+    u, s, vt = np.linalg.svd(x, full_matrices=False)
+    expected = np.concatenate([s[:keep], np.clip(s[keep:] - tau, 0, None)])
+    assert_allclose(y, (u * expected) @ vt, atol=1e-10)
+    assert nuclear == pytest.approx(expected.sum(), rel=1e-10)
+
+    def objective(candidate):
+        values = np.linalg.svd(candidate, compute_uv=False)
+        return tau * values[keep:].sum() + 0.5 * np.linalg.norm(candidate - x) ** 2
+
+    best = objective(y)
+    for _ in range(200):
+        assert objective(y + 1e-2 * rng.standard_normal(x.shape)) >= best - 1e-12

@@ -419,3 +419,18 @@ def test_short_face_sequence_stays_near_the_relaxation():
     # degrees here) to another of them. Measured 1.2 degrees (the previous version: 2.3).
     W, R_true = _project_sequence("face1", n_points=1500)
     assert rotation_error_deg(estimate_rotations(W), R_true) < 3.0
+
+
+def test_rotations_fitted_to_given_shapes_are_exact_from_a_nearby_start():
+    rng = np.random.default_rng(11)
+    truth = project_to_stiefel(rng.standard_normal((8, 2, 3)))
+    shapes = rng.standard_normal((8, 3, 60))
+    tracks = truth @ shapes
+    start = project_to_stiefel(truth + 0.1 * rng.standard_normal(truth.shape))
+    assert rotation_error_deg(start, truth) > 2.0
+    fitted = rotations.fit_rotations_to_shapes(start, tracks, shapes, iterations=8)
+    assert_orthonormal_rows(fitted, 8)
+    assert_allclose(fitted, truth, atol=1e-10)
+    # Each frame's problem is its own: the fit does not mix frames.
+    fitted_one = rotations.fit_rotations_to_shapes(start[:1], tracks[:1], shapes[:1], 8)
+    assert_allclose(fitted_one, fitted[:1], atol=1e-12)

@@ -1,0 +1,158 @@
+"""Camera rotations from rigid factorisations of short windows of frames, chained together.
+
+When the camera turns fast compared with how fast the object deforms (a hand-held camera
+walking around a sheet of paper that slowly rolls up), a few consecutive frames see an almost
+rigid object: Tomasi and Kanade's rigid factorisation of those frames alone recovers their
+rotations, up to one orthogonal 3 x 3 transform per window. Sliding the window one frame at a
+time and aligning each window with the frames it shares with the previous ones (orthogonal
+Procrustes over their rotation rows) chains the windows into rotations for the whole sequence;
+every frame's rotation is the average of its windows' (projected back to orthonormal rows).
+The chain follows the object's mean orientation, which a deforming object changes; those
+rotation errors are largely of the kind a shape can absorb, and the ADMM loop refines these
+rotations together with the shapes (:func:`moju_core.rotations.fit_rotations_to_shapes`).
+Dai et al.'s intersection method instead needs the shapes to be a combination of a few
+shape bases, which a rolling sheet or a travelling wave is not with only tens of frames.
+
+Everything here works on the row Gram matrix ``W W^T`` (2F x 2F): its diagonal blocks are
+the windows' Gram matrices, so no pass over the P points is made after that one product.
+
+:func:`short_time_rigidity` measures how well given rotations explain the tracks as rigid over
+every three consecutive frames; :mod:`moju_core.cameras` uses it to choose between estimates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from moju_core.rotations import project_to_stiefel, rigid_from_factor
+
+#: Window lengths (frames) tried by :func:`best_windowed_rotations`, besides the whole
+#: sequence. Short windows see less deformation, long ones more camera motion; which wins
+#: depends on the sequence (measured on the synthetic sheets: 8-15 frames of 60).
+WINDOW_LENGTHS = (6, 8, 10, 12, 15, 20, 25, 30, 40, 50)
+
+#: Frames per window of the rigidity measure: the shortest window with more equations
+#: (2 per frame) than a rigid point has unknowns (3).
+RIGIDITY_WINDOW = 3
+
+
+def _window_rotations(gram: np.ndarray, length: int) -> np.ndarray:
+    """Tomasi-Kanade rotations of every window of ``length`` consecutive frames.
+
+    Returns
+    -------
+    ndarray of shape (F - length + 1, length, 2, 3)
+        Entry ``[a, i]`` is frame ``a + i`` as seen by window a.
+    """
+    n_windows = gram.shape[0] // 2 - length + 1
+    rows = 2 * np.arange(n_windows)[:, None] + np.arange(2 * length)
+    blocks = gram[rows[:, :, None], rows[:, None, :]]  # (windows, 2L, 2L)
+    eigenvalues, eigenvectors = np.linalg.eigh(blocks)
+    # Motion factor U_3 S_3^(1/2) as in rigid_rotations (S: singular values, the square
+    # roots of the Gram matrix's eigenvalues).
+    weights = np.clip(eigenvalues[:, -3:], 0.0, None) ** 0.25
+    return rigid_from_factor(eigenvectors[:, :, -3:] * weights[:, None, :])
+
+
+def windowed_rotations(gram: np.ndarray, window: int) -> np.ndarray:
+    """Rotations of every frame from rigid factorisations of overlapping windows.
+
+    Parameters
+    ----------
+    gram : ndarray of shape (2F, 2F)
+        ``W W^T`` of the centred tracks.
+    window : int
+        Frames per window, ``3 <= window <= F``; ``window = F`` is the rigid method.
+
+    Returns
+    -------
+    ndarray of shape (F, 2, 3)
+        Rotations with orthonormal rows, up to one global rotation and reflection.
+    """
+    n_frames = gram.shape[0] // 2
+    if not 3 <= window <= n_frames:
+        raise ValueError(f"window must be between 3 and the number of frames {n_frames}")
+    total = np.zeros((n_frames, 2, 3))
+    count = np.zeros(n_frames)
+    for start, rotations in enumerate(_window_rotations(gram, window)):
+        if start > 0:
+            # Align with the frames this window shares with the chain so far: the orthogonal
+            # Q (reflections allowed, as the window's factorisation has them) minimising
+            # ||A Q - B|| over their stacked rows.
+            shared = slice(start, start + window - 1)
+            A = rotations[:-1].reshape(-1, 3)
+            B = (total[shared] / count[shared, None, None]).reshape(-1, 3)
+            u, _, vt = np.linalg.svd(A.T @ B)
+            rotations = rotations @ (u @ vt)
+        total[start : start + window] += rotations
+        count[start : start + window] += 1
+    return project_to_stiefel(total / count[:, None, None])
+
+
+def short_time_rigidity(gram: np.ndarray, rotations: np.ndarray) -> float:
+    """Misfit of the tracks to a rigid shape over every three consecutive frames.
+
+    For each window of ``RIGIDITY_WINDOW`` frames with stacked rotations ``R_w`` (6 x 3) the
+    best rigid shape leaves ``tr(G_w) - tr(P_w G_w)`` of the window's energy ``tr(G_w)``
+    unexplained, ``P_w`` the projector onto the columns of ``R_w`` and ``G_w`` the window's
+    block of ``W W^T``. Correct rotations leave only the deformation within three frames
+    (and noise); wrong ones add apparent deformation. White noise of variance sigma^2 per
+    entry adds about ``sigma^2 / 2`` of every entry's energy (3 unknowns for 6 equations).
+
+    Parameters
+    ----------
+    gram : ndarray of shape (2F, 2F)
+        ``W W^T`` of the centred tracks.
+    rotations : ndarray of shape (F, 2, 3)
+
+    Returns
+    -------
+    float
+        Unexplained energy over the energy of all windows, in [0, 1].
+    """
+    n_frames = rotations.shape[0]
+    window = min(RIGIDITY_WINDOW, n_frames)
+    n_windows = n_frames - window + 1
+    rows = 2 * np.arange(n_windows)[:, None] + np.arange(2 * window)
+    blocks = gram[rows[:, :, None], rows[:, None, :]]  # (windows, 2w, 2w)
+    stacked = rotations[np.arange(n_windows)[:, None] + np.arange(window)]
+    stacked = stacked.reshape(n_windows, 2 * window, 3)
+    # Orthonormal bases of the columns of R_w (rank 2 if the camera did not turn: the
+    # direction of the smallest singular value is then dropped).
+    basis, singular, _ = np.linalg.svd(stacked, full_matrices=False)
+    basis = basis * (singular > 1e-9 * singular[:, :1])[:, None, :]
+    explained = np.einsum("wik,wij,wjk->", basis, blocks, basis)
+    energy = float(np.trace(blocks, axis1=1, axis2=2).sum())
+    return float(max(energy - explained, 0.0) / energy) if energy > 0 else 0.0
+
+
+def best_windowed_rotations(gram: np.ndarray) -> tuple[np.ndarray, int, float]:
+    """The windowed rotations of the window length that is most rigid over three frames.
+
+    Tries every length of :data:`WINDOW_LENGTHS` that fits the sequence, and the whole
+    sequence (the rigid estimate), and keeps the one with the smallest
+    :func:`short_time_rigidity`.
+
+    Parameters
+    ----------
+    gram : ndarray of shape (2F, 2F)
+        ``W W^T`` of the centred tracks (F >= 3).
+
+    Returns
+    -------
+    rotations : ndarray of shape (F, 2, 3)
+    window : int
+        The chosen window length (F for the rigid estimate).
+    rigidity : float
+        Its :func:`short_time_rigidity`.
+    """
+    n_frames = gram.shape[0] // 2
+    lengths = [length for length in WINDOW_LENGTHS if length < n_frames] + [n_frames]
+    best: tuple[np.ndarray, int, float] | None = None
+    for length in lengths:
+        rotations = windowed_rotations(gram, length)
+        rigidity = short_time_rigidity(gram, rotations)
+        if best is None or rigidity < best[2]:
+            best = (rotations, length, rigidity)
+    assert best is not None
+    return best

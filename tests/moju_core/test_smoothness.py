@@ -1,0 +1,65 @@
+"""Choosing the weight of the temporal prior from the data (discrepancy principle)."""
+
+import numpy as np
+import pytest
+
+from moju_core import SolverParams, defaults, smoothness
+from moju_core.datasets import make_sequence
+from moju_core.preprocessing import normalise
+from moju_core.rotations import significant_rank
+
+
+def _choose(name: str, n_points: int = 800, noise: float = 0.0):
+    data = make_sequence(name, n_points=n_points, noise=noise)
+    centred, _ = normalise(data.W)
+    n_frames = data.n_frames
+    tracks = centred.reshape(n_frames, 2, -1)
+    initial = np.einsum("fji,fjp->fip", data.rotations, tracks).reshape(n_frames, -1)
+    top = float(np.sqrt(np.linalg.eigvalsh(initial @ initial.T)[-1]))
+    params = defaults.resolve(SolverParams(rotations="known"), n_frames, data.n_points, top)
+    left, singular, _ = np.linalg.svd(centred, full_matrices=False)
+    basis = left[:, : significant_rank(singular, centred.shape)]
+    return smoothness.choose_smoothness(tracks, data.rotations, params, basis)
+
+
+def test_ten_frames_of_changing_expressions_get_no_prior():
+    weight, trials = _choose("face2")
+    assert weight == 0.0
+    assert [w for w, _ in trials][:2] == [0.0, 0.1]
+
+
+@pytest.mark.parametrize(("name", "noise"), [("paper", 0.0), ("cloth", 0.0), ("paper", 0.03)])
+def test_a_turning_camera_over_slow_deformation_gets_the_prior(name, noise):
+    weight, _ = _choose(name, noise=noise)
+    assert weight >= 10.0
+
+
+def test_the_allowance_decides_and_bisection_needs_four_trials(monkeypatch):
+    weight, trials = _choose("face3", n_points=500)
+    assert 0.0 < weight < smoothness.SMOOTHNESS_GRID[-1]  # measured: 100
+    assert len(trials) == 4  # the weight without the prior, then three bisection steps
+    misfits = dict(trials)
+    assert all(misfits[w] >= misfits[0.0] * (1 - 1e-6) for w in misfits)
+    # No allowance: only a weight that costs nothing at all could pass.
+    monkeypatch.setattr(smoothness, "DEFORMATION_ALLOWANCE", 0.0)
+    strict, _ = _choose("face3", n_points=500)
+    assert strict < weight
+    # Any misfit allowed: the largest weight of the grid.
+    monkeypatch.setattr(smoothness, "DEFORMATION_ALLOWANCE", 1e6)
+    assert _choose("face3", n_points=500)[0] == smoothness.SMOOTHNESS_GRID[-1]
+
+
+def test_non_rigid_energy():
+    assert smoothness.non_rigid_energy(np.array([3.0, 2.0, 1.0])) == 0.0
+    assert smoothness.non_rigid_energy(np.array([2.0, 1.0, 1.0, 1.0])) == pytest.approx(1 / 7)
+    assert smoothness.non_rigid_energy(np.zeros(4)) == 0.0
+
+
+def test_too_few_frames_or_no_signal_give_no_prior():
+    params = SolverParams()
+    tracks = np.random.default_rng(0).standard_normal((2, 2, 50))
+    rotations = np.broadcast_to(np.eye(3)[:2], (2, 2, 3))
+    assert smoothness.choose_smoothness(tracks, rotations, params, np.eye(4)) == (0.0, [])
+    tracks = np.random.default_rng(0).standard_normal((5, 2, 50))
+    rotations = np.broadcast_to(np.eye(3)[:2], (5, 2, 3))
+    assert smoothness.choose_smoothness(tracks, rotations, params, np.zeros((10, 0))) == (0.0, [])

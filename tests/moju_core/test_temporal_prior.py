@@ -1,0 +1,63 @@
+"""The temporal smoothness prior: its operator and the S-update it leads to."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from moju_core import camera, temporal_prior
+from moju_core.rotations import project_to_stiefel
+
+
+def test_second_differences_vanish_on_constant_velocity_only():
+    difference = temporal_prior.second_differences(7)
+    assert difference.shape == (5, 7)
+    frames = np.arange(7.0)
+    assert_allclose(difference @ (3.0 + 2.0 * frames), 0.0, atol=1e-12)
+    assert np.linalg.norm(difference @ frames**2) > 1.0
+    assert temporal_prior.second_differences(2).shape == (0, 2)  # nothing to penalise
+
+
+@pytest.mark.parametrize(
+    ("n_frames", "weight", "rho"), [(7, 2.5, 0.3), (12, 100.0, 1e-2), (4, 0.1, 50.0)]
+)
+def test_smooth_data_step_solves_the_coupled_system(n_frames, weight, rho):
+    rng = np.random.default_rng(n_frames)
+    n_points = 9
+    rotations = project_to_stiefel(rng.standard_normal((n_frames, 2, 3)))
+    tracks = rng.standard_normal((n_frames, 2, n_points))
+    target = rng.standard_normal((n_frames, 3, n_points))
+    back_projected = camera.back_project(rotations, tracks)
+    out = np.empty_like(target)
+    temporal_prior.smooth_data_step(
+        back_projected,
+        camera.viewing_directions(rotations),
+        target.copy(),
+        rho,
+        temporal_prior.temporal_prior(n_frames, weight),
+        out,
+    )
+    # The 3F x 3F system written out: block-diagonal R_f^T R_f, rho I, gamma (D^T D kron I3).
+    difference = temporal_prior.second_differences(n_frames)
+    system = rho * np.eye(3 * n_frames) + weight * np.kron(difference.T @ difference, np.eye(3))
+    for f in range(n_frames):
+        system[3 * f : 3 * f + 3, 3 * f : 3 * f + 3] += rotations[f].T @ rotations[f]
+    rhs = (back_projected + rho * target).reshape(3 * n_frames, n_points)
+    assert_allclose(out.reshape(3 * n_frames, -1), np.linalg.solve(system, rhs), atol=1e-10)
+
+
+def test_smooth_data_step_without_weight_is_the_closed_form_step():
+    rng = np.random.default_rng(1)
+    rotations = project_to_stiefel(rng.standard_normal((5, 2, 3)))
+    back_projected = camera.back_project(rotations, rng.standard_normal((5, 2, 8)))
+    normals = camera.viewing_directions(rotations)
+    target = rng.standard_normal((5, 3, 8))
+    out = np.empty_like(target)
+    prior = temporal_prior.temporal_prior(5, 0.0)
+    temporal_prior.smooth_data_step(back_projected, normals, target.copy(), 0.7, prior, out)
+    assert_allclose(out, camera.data_step(back_projected, normals, target, 0.7), atol=1e-12)
+
+
+def test_a_negative_or_infinite_weight_is_refused():
+    for weight in (-1.0, np.inf):
+        with pytest.raises(ValueError, match="finite number >= 0"):
+            temporal_prior.temporal_prior(5, weight)
