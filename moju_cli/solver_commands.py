@@ -84,7 +84,7 @@ def _option_name(field_name: str) -> str:
 
 
 def _click_type(annotation: Any) -> click.ParamType:
-    """Click type of a :class:`SolverParams` field: choices for literals, else int or float.
+    """Click type of a :class:`SolverParams` field: choices for literals, else bool, int or float.
 
     Range constraints are not copied into the click type: the schema checks them (once, in
     :func:`_solver_params`), so there is a single definition of every bound.
@@ -96,6 +96,8 @@ def _click_type(annotation: Any) -> click.ParamType:
         kind = candidates[0]
         if get_origin(kind) is Literal:
             return click.Choice([str(value) for value in get_args(kind)])
+        if kind is bool:
+            return click.BOOL  # --free-mean-shape false
         if kind is int:
             return click.INT
         if kind is float:
@@ -423,7 +425,7 @@ def reconstruct(
             raise click.ClickException(
                 f"--rotations known needs the camera rotations, but {Path(input_file).name} "
                 f"has no dataset R (shape {measurements.n_frames} x 2 x 3); add it, or use "
-                "--rotations intersection to estimate them"
+                "--rotations auto to estimate them"
             )
         # R in the input is only used when asked for: the schema's default is to estimate.
         result = _solve(
@@ -558,10 +560,10 @@ def demo(
     """Reconstruct a synthetic sequence with ground truth and report the errors.
 
     Writes OUT/input.npz (tracks W, true rotations R, ground truth gt, faces, colors),
-    reconstructs with estimated rotations (intersection method), prints the e3D and the
-    rotation error, and writes OUT/result.npz and one PLY per frame to OUT/ply/.
+    reconstructs with estimated rotations (the default, rotations="auto"), prints the e3D
+    and the rotation error, and writes OUT/result.npz and one PLY per frame to OUT/ply/.
     """
-    params = _solver_params({"method": method, "rotations": "intersection"})
+    params = _solver_params({"method": method, "rotations": "auto"})
     outputs = _Outputs()
     with _interruptible(outputs):
         tic = time.perf_counter()

@@ -243,8 +243,8 @@ def _submission(
     if params.rotations == "known" and measurements.rotations is None:
         raise InvalidInput(
             "params.rotations is 'known' but the input has no rotations: add R (F x 2 x 3) "
-            "to the file (or 'rotations' to the JSON body), or choose rotations "
-            "'intersection' or 'rigid'"
+            "to the file (or 'rotations' to the JSON body), or choose rotations 'auto' to "
+            "estimate them"
         )
     check_params_fit(
         params,
@@ -284,7 +284,8 @@ def check_params_fit(
             f"3 frames; the input has {n_frames}. Send more frames, or upload the rotations R "
             "(F x 2 x 3) and use rotations 'known'"
         )
-    if not uses_known and params.rotations == "intersection" and params.n_bases is not None:
+    uses_intersection = params.rotations in ("auto", "intersection")
+    if not uses_known and uses_intersection and params.n_bases is not None:
         needed = min_frames_for_bases(params.n_bases)
         if n_frames < needed or n_points < 3 * params.n_bases + 1:
             raise InvalidInput(

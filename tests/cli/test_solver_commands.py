@@ -139,7 +139,7 @@ def test_reconstruct_round_trip(reconstructed, sequence):
     assert stored.shapes.shape == (N_FRAMES, N_POINTS, 3)
     assert stored.rotations.shape == (N_FRAMES, 2, 3)
     assert np.isfinite(stored.shapes).all()
-    assert stored.params["rotations"] == "intersection"  # the schema default, not the file's R
+    assert stored.params["rotations"] == "auto"  # the schema default, not the file's R
     assert stored.metadata["input"] == "full.npz"
     assert f"{N_FRAMES} frames x {N_POINTS} points: {stored.n_iter} iterations" in outcome.output
     assert str(output) in outcome.output
@@ -239,7 +239,7 @@ def test_reconstruct_with_known_rotations(inputs, sequence, tmp_path):
 def test_known_rotations_without_R_is_a_clean_error(inputs, tmp_path, solver_must_not_run):
     output = tmp_path / "result.npz"
     outcome = run(["reconstruct", str(inputs["tracks"]), "-o", str(output), "--rotations", "known"])
-    assert_clean_failure(outcome, 1, "no dataset R", "--rotations intersection")
+    assert_clean_failure(outcome, 1, "no dataset R", "--rotations auto")
     assert not output.exists()
 
 
@@ -408,7 +408,7 @@ def test_demo_writes_input_result_and_frames(tmp_path):
         assert getattr(measurements, dataset) is not None
     stored = read_result(out / "result.npz")
     assert stored.shapes.shape == (12, 300, 3)
-    assert stored.params["rotations"] == "intersection"
+    assert stored.params["rotations"] == "auto"
     assert len(list((out / "ply").glob("*.ply"))) == 12
     expected = evaluate(
         stored.shapes, measurements.ground_truth, stored.rotations, measurements.rotations

@@ -132,7 +132,7 @@ def test_submit_follow_and_view_a_job(
     page.wait_for_function("document.querySelector('#readiness').textContent.startsWith('Ready')")
     assert page.locator("#readiness").text_content() == "Ready: 1 worker waiting for jobs."
     options = page.locator("#rotations option").evaluate_all("os => os.map(o => o.value)")
-    assert options == ["", "intersection", "rigid", "known"]
+    assert options == ["", "auto", "intersection", "windowed", "rigid", "known"]
 
     # Record every distinct progress text the job list shows while the job runs.
     page.evaluate(
