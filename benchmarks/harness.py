@@ -5,7 +5,8 @@ result files.
 A measurement is a flat dictionary (a "row"): the sequence and its size, the noise level, the
 rotations used, the method and any parameter overrides, e3D in two alignments, the camera
 rotation error, the wall time and the solver's own timings, iterations, stop reason and the
-resolved parameters that matter for reading the number (groups, p, the PTA basis size).
+resolved parameters that matter for reading the number (groups, p, the PTA basis size, the
+temporal prior's weight, which rotation estimate the camera step chose).
 """
 
 from __future__ import annotations
@@ -41,35 +42,10 @@ def sequence(name: str, n_points: int | None = None, noise: float = 0.0, seed: i
     return make_sequence(name, n_points=n_points, noise=noise, seed=seed)
 
 
-def estimated_rotations(data: Dataset, seed: int = 0) -> tuple[np.ndarray, float, int | None]:
-    """Camera rotations as :func:`moju_core.reconstruct` estimates them by default.
-
-    They are estimated once per sequence and handed to every method as given rotations, so
-    that the methods are compared on the same cameras. The rotation step is the solver's own:
-    ``reconstruct`` with ``rotations="intersection"`` and the cheapest method (``pta``, one
-    linear solve after the rotations).
-
-    Returns
-    -------
-    rotations : ndarray of shape (F, 2, 3)
-    seconds : float
-        Time of the rotation step.
-    n_bases : int or None
-        Number of shape bases the rotation step chose.
-    """
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the rotation step's fallbacks; the error is measured
-        result = reconstruct(
-            data.W, SolverParams(method="pta", rotations="intersection", seed=seed)
-        )
-    return result.rotations, result.timings["rotations"], result.params.n_bases
-
-
 def solve(
     data: Dataset,
     method: str,
     *,
-    rotations: np.ndarray | None = None,
     rotation_source: str = "known",
     seed: int = 0,
     keep_history: bool = False,
@@ -83,10 +59,11 @@ def solve(
         The sequence, with its ground truth.
     method : str
         ``SolverParams.method``.
-    rotations : ndarray of shape (F, 2, 3), optional
-        Rotations to use; the true ones when omitted.
-    rotation_source : str, default "known"
-        Label of the rotations in the row (``"known"`` or ``"estimated"``).
+    rotation_source : {"known", "estimated"}, default "known"
+        ``"known"``: the true rotations are given. ``"estimated"``: the solver's own camera
+        step runs (``rotations="auto"``, the default, unless ``overrides`` name another), as a
+        user without calibrated cameras would run it; the row records which estimate it
+        chose and whether the loop refined it.
     seed : int, default 0
         Solver seed.
     keep_history : bool, default False
@@ -99,12 +76,14 @@ def solve(
     dict
         The row (see the module docstring).
     """
-    used = data.rotations if rotations is None else rotations
-    params = SolverParams(method=method, rotations="known", seed=seed, **overrides)
+    known = rotation_source == "known"
+    params = SolverParams(
+        method=method, **({"rotations": "known"} if known else {}), seed=seed, **overrides
+    )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         start = time.perf_counter()
-        result = reconstruct(data.W, params, rotations=used)
+        result = reconstruct(data.W, params, rotations=data.rotations if known else None)
         seconds = time.perf_counter() - start
     scores = evaluate(result.shapes, data.shapes, result.rotations, data.rotations)
     row: dict[str, Any] = {
@@ -119,12 +98,19 @@ def solve(
         "e3d_global": scores["e3d_global"],
         "rotation_error_deg": scores["rotation_error_deg"],
         "seconds": seconds,
+        "rotation_seconds": result.timings["rotations"],
+        "initialise_seconds": result.timings["initialise"],
         "iterate_seconds": result.timings["iterate"],
         "n_iter": result.n_iter,
         "stop_reason": result.stop_reason,
         "n_groups": result.extras["n_groups_used"],
         "subspace_dim": result.params.subspace_dim,
         "trajectory_bases": result.params.trajectory_bases,
+        "smoothness": result.params.smoothness,
+        "rotation_estimate": result.extras["rotation_source"],
+        "rotation_window": result.extras["rotation_window"],
+        "rotations_refined": result.extras["rotations_refined"],
+        "n_bases": result.params.n_bases,
         "warnings": sorted({str(w.message) for w in caught}),
     }
     if keep_history:
