@@ -110,6 +110,9 @@ def run(
     prior = (
         temporal_prior.temporal_prior(n_frames, params.smoothness) if params.smoothness else None
     )
+    # With fixed cameras the prior filters S# (cheap); when the loop re-fits the cameras to S#
+    # it is solved exactly in the S-update (see moju_core.temporal_prior for the measurements).
+    exact_prior = prior is not None and refine_rotations
     # The truncated nuclear norm: with free_mean_shape the top singular value is not shrunk.
     kept_values = 1 if params.free_mean_shape else 0
     shapes = back_projected.copy()  # S = pinv(R) W
@@ -173,10 +176,10 @@ def run(
         # 1. S-update: data term + coupling to S#.
         np.add(sharp, scaled, out=work)
         target = work.reshape(n_frames, 3, n_points)
-        if prior is None:
-            camera.data_step(back_projected, normals, target, rho, out=shapes)
-        else:
+        if exact_prior:
             temporal_prior.smooth_data_step(back_projected, normals, target, rho, prior, shapes)
+        else:
+            camera.data_step(back_projected, normals, target, rho, out=shapes)
         if refine_rotations and iteration > 1 and rho < ROTATION_REFINE_RHO:
             # Alternate: the rotations that best project the current low-rank shapes.
             rotations = fit_rotations_to_shapes(
@@ -248,8 +251,13 @@ def run(
         shape_form = shapes.reshape(n_frames, 3 * n_points)
         # 10. S#-update: singular value thresholding.
         np.subtract(shape_form, scaled, out=work)
+        # ... followed by the temporal prior's filter on the frames, unless the S-update
+        # solved it (moju_core.temporal_prior).
+        smoothing = (
+            None if prior is None or exact_prior else temporal_prior.smoothing_filter(prior, rho)
+        )
         _, nuclear = lrr.singular_value_threshold(
-            work, params.beta2 / rho, out=sharp, keep=kept_values
+            work, params.beta2 / rho, out=sharp, keep=kept_values, left=smoothing
         )
         # 11. Z-update.
         if adaptive:

@@ -6,7 +6,12 @@ import numpy as np
 
 
 def singular_value_threshold(
-    x: np.ndarray, tau: float, out: np.ndarray | None = None, *, keep: int = 0
+    x: np.ndarray,
+    tau: float,
+    out: np.ndarray | None = None,
+    *,
+    keep: int = 0,
+    left: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """Proximal operator of ``tau ||.||_*``: ``U max(Sigma - tau, 0) V^T`` (Algorithm 1, 10-11).
 
@@ -32,6 +37,10 @@ def singular_value_threshold(
         Where to write the result (must not share memory with x).
     keep : int, default 0
         Number of leading singular values left unshrunk (0: the plain nuclear norm).
+    left : ndarray of shape (m, m), optional
+        A matrix applied to the result from the left, ``y <- left @ y`` (for a wide x): the
+        temporal prior's filter (:func:`moju_core.temporal_prior.smoothing_filter`). It acts
+        on the r surviving left singular vectors only, O(m^2 r).
 
     Returns
     -------
@@ -41,6 +50,8 @@ def singular_value_threshold(
     """
     m, n = x.shape
     wide = m <= n
+    if left is not None and not wide:
+        raise ValueError("a left filter needs a wide matrix (more columns than rows)")
     values, vectors = np.linalg.eigh(x @ x.T if wide else x.T @ x)
     s = np.sqrt(np.clip(values, 0.0, None))
     shrunk = np.clip(s - tau, 0.0, None)
@@ -51,11 +62,16 @@ def singular_value_threshold(
     # Only the r surviving directions are applied: O(r m n) instead of O(m n min(m, n)).
     kept = vectors[:, surviving]
     factors = shrunk[surviving] / s[surviving]
-    if wide:
-        y = np.matmul(kept * factors, kept.T @ x, out=out)
-    else:
-        y = np.matmul(x @ kept, (kept * factors).T, out=out)
-    return y, float(shrunk.sum())
+    if not wide:
+        return np.matmul(x @ kept, (kept * factors).T, out=out), float(shrunk.sum())
+    columns = kept * factors
+    nuclear = float(shrunk.sum())
+    if left is not None:
+        columns = left @ columns
+        # y = (left U_r diag(shrunk)) V_r^T with V_r orthonormal: the nuclear norm of y is
+        # that of the (m, r) factor.
+        nuclear = float(np.linalg.svd(left @ kept * shrunk[surviving], compute_uv=False).sum())
+    return np.matmul(columns, kept.T @ x, out=out), nuclear
 
 
 def kernel_eigh(gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,15 +1,27 @@
-"""The temporal smoothness prior on 3D trajectories and the S-update it leads to.
+"""The temporal smoothness prior on the shapes, and the two ways the loop applies it.
 
 A point on a deforming surface moves smoothly between frames when the video is sampled fast
 enough. The prior ``gamma / 2 ||D S||_F^2`` penalises the second differences along the frames
-of every 3D trajectory (D is the (F - 2) x F second-difference matrix, applied to each
-coordinate of each point: ``(D S)_f = S_f - 2 S_{f+1} + S_{f+2}``). It adds nothing for a
-trajectory that moves at constant velocity and lets a frame's unseen depth borrow from the
-neighbouring frames, which see that direction in their image plane when the camera turns: the
-trajectory-space argument of Akhter et al. (NIPS 2008) without a fixed basis. With
-``gamma = 0`` the loop is the paper's.
+(D is the (F - 2) x F second-difference matrix, ``(D S)_f = S_f - 2 S_{f+1} + S_{f+2}``,
+applied to every coordinate of every point): it costs nothing for a point that moves at
+constant velocity and lets a frame's unseen depth borrow from the neighbouring frames, which
+see that direction in their image plane when the camera turns (the trajectory-space argument
+of Akhter et al., NIPS 2008, without a fixed basis). With ``gamma = 0`` the loop is the paper's.
 
-With the prior the S-update of Algorithm 1 (step 1) couples the frames:
+**Fixed cameras: a filter after the S# step.** After the singular value threshold
+(Algorithm 1, step 10) the result is passed through the proximal operator of the prior at the
+current penalty,
+
+    S# <- G_rho SVT(f(S) - L1 / rho),   G_rho = (I + (gamma / rho) D^T D)^{-1}   (F x F),
+
+a splitting of the step's two terms (each proximal operator in turn). ``G_rho`` acts on the
+frames only, so it filters the temporal factor of the thresholded S#: with ``S# = U Sigma V^T``
+of rank r the result is ``(G_rho U) Sigma V^T``, for F x F x r operations - nearly free.
+
+**Cameras refined in the loop: the exact S-update.** When the loop also re-fits the rotations
+to S# (windowed cameras, :mod:`moju_core.cameras`), the splitting is not enough: measured at
+2,000 points with the cloth, e3D 0.115 for every weight from 1 to 100 against 0.04 with the
+prior solved exactly. The S-update (step 1) then couples the frames:
 
     (R^T R + rho I + gamma (D^T D kron I_3)) S = R^T W + rho T
 
@@ -19,12 +31,14 @@ along the frames) and ``N`` the 3F x F matrix of the viewing directions (``R_f^T
 n_f n_f^T``). The Woodbury identity solves it with two F x F filters and one F x F solve per
 column block, never forming a 3F x 3F matrix:
 
-    S = Y + G_rho (n * u),   Y = G_rho X,   u = C^{-1} (n . Y),
-    G_rho = ((1 + rho) I + gamma D^T D)^{-1},   C_fg = delta_fg - G_rho[f, g] (n_f . n_g)
+    S = Y + G (n * u),   Y = G X,   u = C^{-1} (n . Y),
+    G = ((1 + rho) I + gamma D^T D)^{-1},   C_fg = delta_fg - G[f, g] (n_f . n_g)
 
 where ``X`` is the right-hand side, ``n . Y`` is the per-frame dot product with the viewing
 direction and ``n * u`` puts ``u_f`` along ``n_f``. ``C`` is positive definite
-(``N^T B^{-1} N <= I / (1 + rho)``).
+(``N^T B^{-1} N <= I / (1 + rho)``). It costs about 4 times the plain S-update, which is why
+the fixed-camera case uses the filter: with known rotations both give the same e3D to within
+2 % on the sheets and face3 (2,000 points, weights 0-1,000).
 """
 
 from __future__ import annotations
@@ -58,12 +72,34 @@ def second_differences(n_frames: int) -> np.ndarray:
 
 
 def temporal_prior(n_frames: int, weight: float) -> TemporalPrior:
-    """The prior ``weight / 2 ||D S||^2`` for F frames, ready for :func:`smooth_data_step`."""
+    """The prior ``weight / 2 ||D S#||^2`` for F frames, ready for :func:`smoothing_filter` or
+    :func:`smooth_data_step`."""
     if weight < 0 or not np.isfinite(weight):
         raise ValueError(f"the smoothness weight must be a finite number >= 0, got {weight!r}")
     difference = second_differences(n_frames)
     values, vectors = np.linalg.eigh(difference.T @ difference)
     return TemporalPrior(np.clip(values, 0.0, None), vectors, float(weight))
+
+
+def smoothing_filter(prior: TemporalPrior, rho: float) -> np.ndarray:
+    """Proximal operator of the prior at penalty rho, as a matrix on the frames.
+
+    ``argmin_Y gamma/2 ||D Y||^2 + rho/2 ||Y - X||^2 = G X`` with
+    ``G = (I + (gamma / rho) D^T D)^{-1} = V diag(1 / (1 + (gamma / rho) lambda)) V^T``.
+
+    Parameters
+    ----------
+    prior : TemporalPrior
+    rho : float
+        Penalty, > 0.
+
+    Returns
+    -------
+    ndarray of shape (F, F)
+        Symmetric, eigenvalues in (0, 1]; constant and linear motion pass unchanged.
+    """
+    gains = 1.0 / (1.0 + (prior.weight / rho) * prior.values)
+    return (prior.vectors * gains) @ prior.vectors.T
 
 
 def filter_matrix(prior: TemporalPrior, rho: float) -> np.ndarray:

@@ -90,3 +90,16 @@ def test_svt_keeping_the_top_values_is_the_prox_of_the_partial_sum(keep):
     best = objective(y)
     for _ in range(200):
         assert objective(y + 1e-2 * rng.standard_normal(x.shape)) >= best - 1e-12
+
+
+def test_svt_with_a_left_filter_filters_the_thresholded_result():
+    rng = np.random.default_rng(6)
+    x = rng.standard_normal((7, 40))
+    left = rng.standard_normal((7, 7))
+    left = left @ left.T / 7  # any matrix; the temporal prior's filter is symmetric
+    y, nuclear = singular_value_threshold(x, 1.1, keep=1, left=left)
+    plain, _ = singular_value_threshold(x, 1.1, keep=1)
+    assert_allclose(y, left @ plain, atol=1e-10)
+    assert nuclear == pytest.approx(np.linalg.svd(y, compute_uv=False).sum(), rel=1e-10)
+    with pytest.raises(ValueError, match="wide matrix"):
+        singular_value_threshold(x.T, 1.1, left=left)

@@ -1,10 +1,11 @@
-"""The temporal smoothness prior: its operator and the S-update it leads to."""
+"""The temporal smoothness prior: its operator, the filter on S# and the exact S-update."""
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from moju_core import camera, temporal_prior
+from moju_core import SolverParams, camera, reconstruct, temporal_prior
+from moju_core.datasets import make_sequence
 from moju_core.rotations import project_to_stiefel
 
 
@@ -61,3 +62,48 @@ def test_a_negative_or_infinite_weight_is_refused():
     for weight in (-1.0, np.inf):
         with pytest.raises(ValueError, match="finite number >= 0"):
             temporal_prior.temporal_prior(5, weight)
+
+
+@pytest.mark.parametrize(("weight", "rho"), [(2.5, 0.3), (100.0, 1e-2), (0.1, 50.0)])
+def test_smoothing_filter_is_the_proximal_operator_of_the_prior(weight, rho):
+    n_frames = 9
+    rng = np.random.default_rng(7)
+    x = rng.standard_normal((n_frames, 12))
+    smoother = temporal_prior.smoothing_filter(temporal_prior.temporal_prior(n_frames, weight), rho)
+    y = smoother @ x
+    difference = temporal_prior.second_differences(n_frames)
+    # Optimality of gamma/2 ||D Y||^2 + rho/2 ||Y - X||^2: gamma D^T D Y + rho (Y - X) = 0.
+    assert_allclose(weight * difference.T @ difference @ y + rho * (y - x), 0.0, atol=1e-10)
+    gains = np.linalg.eigvalsh(smoother)
+    assert gains.min() > 0 and gains.max() <= 1 + 1e-12
+    frames = np.arange(n_frames, dtype=float)
+    linear = np.stack([np.ones(n_frames), frames, 2.0 - 0.5 * frames], axis=1)
+    assert_allclose(smoother @ linear, linear, atol=1e-10)  # constant velocity passes
+
+
+@pytest.mark.parametrize(("rotations", "exact"), [("known", False), ("windowed", True)])
+def test_the_loop_solves_the_prior_exactly_only_when_it_refits_the_cameras(
+    monkeypatch, rotations, exact
+):
+    calls = {"exact": 0, "filter": 0}
+    real_step, real_filter = temporal_prior.smooth_data_step, temporal_prior.smoothing_filter
+
+    def counted_step(*args, **kwargs):
+        calls["exact"] += 1
+        return real_step(*args, **kwargs)
+
+    def counted_filter(*args, **kwargs):
+        calls["filter"] += 1
+        return real_filter(*args, **kwargs)
+
+    monkeypatch.setattr(temporal_prior, "smooth_data_step", counted_step)
+    monkeypatch.setattr(temporal_prior, "smoothing_filter", counted_filter)
+    data = make_sequence("paper", n_points=300)
+    result = reconstruct(
+        data.W,
+        SolverParams(rotations=rotations, smoothness=10.0, max_iter=5),
+        rotations=data.rotations if rotations == "known" else None,
+    )
+    assert result.extras["rotations_refined"] is exact
+    assert (calls["exact"] > 0) is exact
+    assert (calls["filter"] > 0) is not exact
