@@ -3,9 +3,9 @@
 The issue's targets, checked at 2,000 points per sequence (the benchmarks check full size):
 on the dense faces e3D <= 0.05 with known and <= 0.08 with estimated rotations; on the sheets
 that deform far from any rigid shape (the best rigid reconstruction scores above 0.15) e3D
-well below half of that, and below 0.05, with estimated rotations. Measured at this size (see
-docs/solver.md): faces 0.030 / 0.040 / 0.0097 / 0.022 known and 0.030 / 0.065 / 0.0096 / 0.022
-estimated; paper 0.011 / 0.0099 and cloth 0.040 / 0.044 known / estimated.
+well below half of that, and below 0.05, with estimated rotations. Measured at this size with
+estimated rotations: face1 0.030, face2 0.065, paper 0.0099, cloth 0.044 (the full sizes are in
+benchmarks/results/table1.md).
 """
 
 import pytest
