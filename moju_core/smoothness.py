@@ -44,6 +44,13 @@ DEFORMATION_ALLOWANCE = 0.025
 #: means over F x 2 x 400 entries; on the synthetic sequences 400 and 1,000 points chose the
 #: same weights.
 SELECTION_POINTS = 400
+#: Loop controls the trial solves take from the schema's defaults, not from the caller: the rule
+#: was set with them, and a solve asked to run long (e.g. ``max_iter=10_000, rho_growth=1.0005``)
+#: must not run its four trial solves that long too.
+TRIAL_LOOP_CONTROL = {
+    name: SolverParams.model_fields[name].default
+    for name in ("max_iter", "tol", "rho", "rho_max", "rho_growth")
+}
 
 
 def choose_smoothness(
@@ -65,7 +72,8 @@ def choose_smoothness(
         The rotations the solve will start from.
     params : SolverParams
         Resolved parameters (``smoothness`` is ignored); the trial solves use one local group
-        (groups of the subset's size would not represent the full solve's).
+        (groups of the subset's size would not represent the full solve's) and the default
+        loop controls (:data:`TRIAL_LOOP_CONTROL`).
     signal_basis : ndarray of shape (2F, r)
         Orthonormal left singular vectors of W for its r singular values above the noise.
     refine_rotations : bool, default False
@@ -97,7 +105,9 @@ def choose_smoothness(
     trials: list[tuple[float, float]] = []
 
     def misfit(weight: float) -> float:
-        trial = params.model_copy(update={"smoothness": weight, "n_groups": 1})
+        trial = params.model_copy(
+            update={"smoothness": weight, "n_groups": 1, **TRIAL_LOOP_CONTROL}
+        )
         out = admm.run(
             signal_tracks, rotations, trial, hook=hook, refine_rotations=refine_rotations
         )

@@ -9,14 +9,16 @@ from moju_core.preprocessing import normalise
 from moju_core.rotations import significant_rank
 
 
-def _choose(name: str, n_points: int = 800, noise: float = 0.0):
+def _choose(name: str, n_points: int = 800, noise: float = 0.0, **overrides):
     data = make_sequence(name, n_points=n_points, noise=noise)
     centred, _ = normalise(data.W)
     n_frames = data.n_frames
     tracks = centred.reshape(n_frames, 2, -1)
     initial = np.einsum("fji,fjp->fip", data.rotations, tracks).reshape(n_frames, -1)
     top = float(np.sqrt(np.linalg.eigvalsh(initial @ initial.T)[-1]))
-    params = defaults.resolve(SolverParams(rotations="known"), n_frames, data.n_points, top)
+    params = defaults.resolve(
+        SolverParams(rotations="known", **overrides), n_frames, data.n_points, top
+    )
     left, singular, _ = np.linalg.svd(centred, full_matrices=False)
     basis = left[:, : significant_rank(singular, centred.shape)]
     return smoothness.choose_smoothness(tracks, data.rotations, params, basis)
@@ -47,6 +49,13 @@ def test_the_allowance_decides_and_bisection_needs_four_trials(monkeypatch):
     # Any misfit allowed: the largest weight of the grid.
     monkeypatch.setattr(smoothness, "DEFORMATION_ALLOWANCE", 1e6)
     assert _choose("face3", n_points=500)[0] == smoothness.SMOOTHNESS_GRID[-1]
+
+
+def test_trial_solves_ignore_the_callers_loop_controls():
+    """A solve asked to run long (the worker tests' cancellation job) must not make the four
+    trial solves run long: they would take minutes before the solve starts."""
+    long_run = {"max_iter": 10_000, "tol": 0.0, "rho_growth": 1.0005, "rho_max": 1e12}
+    assert _choose("paper", n_points=300, **long_run) == _choose("paper", n_points=300)
 
 
 def test_non_rigid_energy():
