@@ -29,6 +29,7 @@ from harness import (
     RESULTS,
     describe,
     figure,
+    find_row,
     provenance,
     save_figure,
     sequence,
@@ -85,13 +86,6 @@ def accuracy_rows(
     return rows
 
 
-def _find(rows: list[dict], **match: Any) -> dict | None:
-    for row in rows:
-        if all(row[key] == value for key, value in match.items()):
-            return row
-    return None
-
-
 def _cell(row: dict | None, key: str = "e3d", digits: int = 4) -> str:
     if row is None:
         return "-"
@@ -112,14 +106,16 @@ def table_lines(rows: list[dict]) -> list[str]:
     for source in sources:
         body = []
         for name in names:
-            first = _find(rows, sequence=name, rotations=source)
+            first = find_row(rows, sequence=name, rotations=source)
             if first is None:
                 continue
-            cells = [_cell(_find(rows, sequence=name, rotations=source, method=m)) for m in methods]
+            cells = [
+                _cell(find_row(rows, sequence=name, rotations=source, method=m)) for m in methods
+            ]
             present = [
                 (r["e3d"], r["method"])
                 for m in methods
-                if (r := _find(rows, sequence=name, rotations=source, method=m)) is not None
+                if (r := find_row(rows, sequence=name, rotations=source, method=m)) is not None
             ]
             best = min(present)[1]
             body.append(
@@ -130,7 +126,7 @@ def table_lines(rows: list[dict]) -> list[str]:
                     *cells,
                     best,
                     _cell(
-                        _find(rows, sequence=name, rotations=source, method=methods[-1]),
+                        find_row(rows, sequence=name, rotations=source, method=methods[-1]),
                         "rotation_error_deg",
                         2,
                     ),
@@ -234,11 +230,13 @@ def write(rows: list[dict], meta: dict, out_dir: Path, stem: str, title: str) ->
     width = 0.8 / (len(methods) + 1)
     x = np.arange(len(names))
     for ax, source in zip(axes[0], sources, strict=True):
-        rigid = [_find(rows, sequence=n)["rigid_e3d"] for n in names]
+        rigid = [find_row(rows, sequence=n)["rigid_e3d"] for n in names]
         ax.bar(x, rigid, width, label="best rigid", color="0.75")
         for i, method in enumerate(methods, start=1):
             values = [
-                r["e3d"] if (r := _find(rows, sequence=n, rotations=source, method=method)) else 0
+                r["e3d"]
+                if (r := find_row(rows, sequence=n, rotations=source, method=method))
+                else 0
                 for n in names
             ]
             ax.bar(x + i * width, values, width, label=method)

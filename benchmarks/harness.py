@@ -42,6 +42,14 @@ def sequence(name: str, n_points: int | None = None, noise: float = 0.0, seed: i
     return make_sequence(name, n_points=n_points, noise=noise, seed=seed)
 
 
+def find_row(rows: list[dict], **match: Any) -> dict | None:
+    """The first row whose fields equal ``match`` (e.g. ``sequence="face1", method="moju"``)."""
+    for row in rows:
+        if all(row[key] == value for key, value in match.items()):
+            return row
+    return None
+
+
 def solve(
     data: Dataset,
     method: str,

@@ -45,6 +45,7 @@ from harness import (
     RESULTS,
     describe,
     figure,
+    find_row,
     mean,
     provenance,
     provenance_lines,
@@ -198,49 +199,39 @@ def table1(config: Config, meta: dict, out: Path, seed: int) -> Item:
 def target_claims(rows: list[dict]) -> list[tuple[str, bool | None, str]]:
     """The accuracy targets of issue #2 for the default solver (moju)."""
 
-    def moju(name: str, source: str) -> dict | None:
-        return next(
-            (
-                r
-                for r in rows
-                if (r["sequence"], r["rotations"], r["method"]) == (name, source, "moju")
-            ),
-            None,
-        )
+    def both(names: tuple[str, ...]) -> dict[str, tuple[dict, dict]]:
+        """moju's known- and estimated-rotation rows of the sequences that have both."""
+        found = {
+            name: tuple(
+                find_row(rows, sequence=name, rotations=source, method="moju")
+                for source in ("known", "estimated")
+            )
+            for name in names
+        }
+        return {name: pair for name, pair in found.items() if None not in pair}
 
     claims = []
-    faces = [name for name in FACES if moju(name, "known") and moju(name, "estimated")]
-    if faces:
-        known = {name: moju(name, "known")["e3d"] for name in faces}
-        estimated = {name: moju(name, "estimated")["e3d"] for name in faces}
+    if faces := both(FACES):
         claims.append(
             (
                 "Faces: MoJu's e3D <= 0.05 with known and <= 0.08 with estimated rotations",
-                all(v <= 0.05 for v in known.values())
-                and all(v <= 0.08 for v in estimated.values()),
-                ", ".join(f"{n} {known[n]:.4f} / {estimated[n]:.4f}" for n in faces),
+                all(k["e3d"] <= 0.05 and e["e3d"] <= 0.08 for k, e in faces.values()),
+                ", ".join(f"{n} {k['e3d']:.4f} / {e['e3d']:.4f}" for n, (k, e) in faces.items()),
             )
         )
-    sheets = [
-        name for name in ("paper", "cloth") if moju(name, "known") and moju(name, "estimated")
-    ]
-    if sheets:
-        details = {
-            name: (moju(name, "estimated")["e3d"], moju(name, "estimated")["rigid_e3d"])
-            for name in sheets
-        }
+    if sheets := both(("paper", "cloth")):
         claims.append(
             (
                 "Sheets: MoJu's e3D with estimated rotations below half the best rigid "
                 "reconstruction's and below 0.05",
-                all(e < min(0.05, 0.5 * rigid) for e, rigid in details.values()),
-                ", ".join(f"{n} {e:.4f} (rigid {rigid:.4f})" for n, (e, rigid) in details.items()),
+                all(e["e3d"] < min(0.05, 0.5 * e["rigid_e3d"]) for _, e in sheets.values()),
+                ", ".join(
+                    f"{n} {e['e3d']:.4f} (rigid {e['rigid_e3d']:.4f})"
+                    for n, (_, e) in sheets.items()
+                ),
             )
         )
     return claims
-
-
-# --- 2. noise ------------------------------------------------------------------------------
 
 
 def noise(config: Config, meta: dict, out: Path, seed: int) -> Item:

@@ -69,8 +69,8 @@ def singular_value_threshold(
     if left is not None:
         columns = left @ columns
         # y = (left U_r diag(shrunk)) V_r^T with V_r orthonormal: the nuclear norm of y is
-        # that of the (m, r) factor.
-        nuclear = float(np.linalg.svd(left @ kept * shrunk[surviving], compute_uv=False).sum())
+        # that of the (m, r) factor, which is columns diag(s).
+        nuclear = float(np.linalg.svd(columns * s[surviving], compute_uv=False).sum())
     return np.matmul(columns, kept.T @ x, out=out), nuclear
 
 
