@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from moju_core import windowed_rotations
-from moju_core.rotations import choose_n_bases, estimate_rotations, noise_variance
+from moju_core.rotations import choose_n_bases, estimate_rotations, noise_variance, spectrum
+from moju_core.row_gram import RowGram
 
 #: ``"auto"`` takes the windowed rotations when their deformation over three frames (beyond
 #: the noise) is below this fraction of the intersection rotations'.
@@ -65,7 +66,7 @@ def estimate_cameras(
     *,
     n_bases: int | None = None,
     seed: int = 0,
-    gram: np.ndarray | None = None,
+    singular: np.ndarray | None = None,
 ) -> CameraEstimate:
     """Camera rotations of centred tracks by the named method.
 
@@ -78,8 +79,8 @@ def estimate_cameras(
         Shape bases of the intersection method; chosen from the spectrum when omitted.
     seed : int, default 0
         Seed of the intersection method's search.
-    gram : ndarray of shape (2F, 2F), optional
-        ``W W^T`` if already computed.
+    singular : ndarray of shape (min(2F, P),), optional
+        Singular values of W, decreasing, if already computed.
 
     Returns
     -------
@@ -87,13 +88,13 @@ def estimate_cameras(
     """
     if method == "rigid":
         return CameraEstimate(estimate_rotations(W, "rigid"), "rigid")
-    if gram is None:
-        gram = W @ W.T
-    if method == "windowed":
-        rotations, window, _ = windowed_rotations.best_windowed_rotations(gram)
-        return CameraEstimate(rotations, "windowed", window=window, refine=True)
-    if method not in ("auto", "intersection"):
+    if method not in ("auto", "intersection", "windowed"):
         raise ValueError(f"unknown rotation method {method!r}")
+    if method == "windowed":
+        gram = RowGram(W, max(windowed_rotations.WINDOW_LENGTHS))
+        rigid = estimate_rotations(W, "rigid")
+        rotations, window, _ = windowed_rotations.best_windowed_rotations(gram, rigid)
+        return CameraEstimate(rotations, "windowed", window=window, refine=True)
     if n_bases is None:
         n_bases = choose_n_bases(W)
     if method == "intersection" or W.shape[0] < 2 * windowed_rotations.RIGIDITY_WINDOW:
@@ -104,10 +105,13 @@ def estimate_cameras(
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         intersection = estimate_rotations(W, "intersection", n_bases=n_bases, seed=seed)
-    windowed, window, windowed_rigidity = windowed_rotations.best_windowed_rotations(gram)
-    singular = np.sqrt(np.clip(np.linalg.eigvalsh(gram)[::-1], 0.0, None))[: min(W.shape)]
+    gram = RowGram(W, max(windowed_rotations.WINDOW_LENGTHS))
+    rigid = estimate_rotations(W, "rigid")
+    windowed, window, windowed_rigidity = windowed_rotations.best_windowed_rotations(gram, rigid)
+    if singular is None:
+        singular = spectrum(W).singular
     # Noise of variance sigma^2 leaves sigma^2 / 2 of every entry's energy unexplained.
-    noise_part = 0.5 * noise_variance(singular, W.shape) * W.size / max(np.trace(gram), 1e-300)
+    noise_part = 0.5 * noise_variance(singular, W.shape) * W.size / max(gram.total, 1e-300)
     excess = {
         "intersection": max(
             windowed_rotations.short_time_rigidity(gram, intersection) - noise_part, 0.0

@@ -105,20 +105,39 @@ def update_map(delta: np.ndarray, omegas: np.ndarray, weights: np.ndarray) -> np
     n_groups = len(omegas)
     degrees = weights.sum(axis=1)
     laplacian = np.diag(degrees) - weights
-    blocks = omegas @ (np.swapaxes(omegas, 1, 2) @ delta)  # A_i = Omega_i Omega_i^T Delta
-    mixed = (laplacian @ blocks.reshape(n_groups, n * d)).reshape(n_groups, n, d)
-    # sum_i A_i mixed_i^T as one (n, K d) x (K d, n) product
-    a = blocks.transpose(1, 0, 2).reshape(n, -1) @ mixed.transpose(1, 0, 2).reshape(n, -1).T
-    a = 0.5 * (a + a.T)
     weighted = omegas * np.sqrt(degrees)[:, None, None]
-    flat = weighted.transpose(1, 0, 2).reshape(n, -1)
+    flat = weighted.transpose(1, 0, 2).reshape(n, -1)  # D = flat flat^T
+    # A and D map into the span of the Omega_i (K p directions): when that is smaller than
+    # R^n (few groups, long sequences) the eigenproblem is solved in an orthonormal basis of
+    # it, which is exact and costs O(n (K p)^2) instead of O(n^3); outside the span D = 0 and
+    # the problem has no finite eigenvalues.
+    span = _span_basis(flat, d) if flat.shape[1] < n else None
+    if span is not None:
+        omegas = span.T @ omegas  # (K, r, p)
+        delta = span.T @ delta
+        flat = span.T @ flat
+    blocks = omegas @ (np.swapaxes(omegas, 1, 2) @ delta)  # A_i = Omega_i Omega_i^T Delta
+    size = blocks.shape[1]
+    mixed = (laplacian @ blocks.reshape(n_groups, size * d)).reshape(n_groups, size, d)
+    # sum_i A_i mixed_i^T as one (n, K d) x (K d, n) product
+    a = blocks.transpose(1, 0, 2).reshape(size, -1) @ mixed.transpose(1, 0, 2).reshape(size, -1).T
+    a = 0.5 * (a + a.T)
     b = flat @ flat.T
     # D is PSD but rank-deficient when the groups span less than R^n; a relative ridge makes
     # it definite without changing the well-determined directions.
-    b += (1e-9 * np.trace(b) / n + 1e-300) * np.eye(n)
+    b += (1e-9 * np.trace(b) / size + 1e-300) * np.eye(size)
     _, vectors = scipy.linalg.eigh(a, b, subset_by_index=[0, d - 1])
+    if span is not None:
+        vectors = span @ vectors
     # eigh normalises x^T D x = 1 per column; the constraint asks for a total trace of 1.
     return vectors / np.sqrt(d)
+
+
+def _span_basis(flat: np.ndarray, d: int) -> np.ndarray | None:
+    """Orthonormal basis (n, r) of the column span of ``flat``, or None if r < d."""
+    left, singular, _ = np.linalg.svd(flat, full_matrices=False)
+    rank = int(np.count_nonzero(singular > 1e-10 * singular[0])) if singular.size else 0
+    return left[:, :rank] if rank >= d else None
 
 
 def jump(

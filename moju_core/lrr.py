@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 
@@ -11,7 +13,7 @@ def singular_value_threshold(
     out: np.ndarray | None = None,
     *,
     keep: int = 0,
-    left: np.ndarray | None = None,
+    left: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, float]:
     """Proximal operator of ``tau ||.||_*``: ``U max(Sigma - tau, 0) V^T`` (Algorithm 1, 10-11).
 
@@ -20,13 +22,15 @@ def singular_value_threshold(
     partial sum ``tau sum_{i > r} sigma_i(Y)`` (Oh et al., "Partial sum minimization of
     singular values in RPCA", ICCV 2013), which penalises all but the r dominant directions.
 
-    Computed through the Gram matrix of the shorter side. For a wide X (like ``S#`` of shape
-    (F, 3P)), with ``X X^T = U L U^T`` the result is ``U_r diag(max(s - tau, 0) / s) U_r^T X``
-    over the r singular values above tau, so only an (F, F) eigenproblem and products with r
-    rows are needed; a tall X uses ``X^T X`` the same way from the right. Even for a square X
-    (the LRR matrix Z, K x K) the symmetric eigenproblem costs half an SVD (0.05 s against
-    0.10 s at K = 600, one thread). The Gram route loses accuracy only on singular values below
-    about ``sqrt(eps) * s_max``; those are shrunk to zero unless tau is below that level.
+    Computed through the Gram matrix of the shorter side, so an (m, n) input costs
+    ``O(m n min(m, n))``. For a wide X (like ``S#`` of shape (F, 3P) with F <= 3P), with
+    ``X X^T = U L U^T`` the result is ``U_r diag(max(s - tau, 0) / s) U_r^T X`` over the r
+    singular values above tau, so only an (F, F) eigenproblem and products with r rows are
+    needed; a tall X (F > 3P: long sequences of few points) uses the (n, n) matrix ``X^T X``
+    the same way from the right. Even for a square X (the LRR matrix Z, K x K) the symmetric
+    eigenproblem costs half an SVD (0.05 s against 0.10 s at K = 600, one thread). The Gram
+    route loses accuracy only on singular values below about ``sqrt(eps) * s_max``; those are
+    shrunk to zero unless tau is below that level.
 
     Parameters
     ----------
@@ -37,10 +41,11 @@ def singular_value_threshold(
         Where to write the result (must not share memory with x).
     keep : int, default 0
         Number of leading singular values left unshrunk (0: the plain nuclear norm).
-    left : ndarray of shape (m, m), optional
-        A matrix applied to the result from the left, ``y <- left @ y`` (for a wide x): the
-        temporal prior's filter (:func:`moju_core.temporal_prior.smoothing_filter`). It acts
-        on the r surviving left singular vectors only, O(m^2 r).
+    left : callable, optional
+        A linear map applied to the result from the left, ``y <- left(y)``, given as a
+        function of an (m, k) array: the temporal prior's filter
+        (:class:`moju_core.temporal_prior.FrameFilter`). It acts on the r surviving left
+        singular directions only, so it costs what ``left`` costs on r columns.
 
     Returns
     -------
@@ -50,8 +55,6 @@ def singular_value_threshold(
     """
     m, n = x.shape
     wide = m <= n
-    if left is not None and not wide:
-        raise ValueError("a left filter needs a wide matrix (more columns than rows)")
     values, vectors = np.linalg.eigh(x @ x.T if wide else x.T @ x)
     s = np.sqrt(np.clip(values, 0.0, None))
     shrunk = np.clip(s - tau, 0.0, None)
@@ -62,16 +65,25 @@ def singular_value_threshold(
     # Only the r surviving directions are applied: O(r m n) instead of O(m n min(m, n)).
     kept = vectors[:, surviving]
     factors = shrunk[surviving] / s[surviving]
-    if not wide:
-        return np.matmul(x @ kept, (kept * factors).T, out=out), float(shrunk.sum())
-    columns = kept * factors
     nuclear = float(shrunk.sum())
-    if left is not None:
-        columns = left @ columns
-        # y = (left U_r diag(shrunk)) V_r^T with V_r orthonormal: the nuclear norm of y is
-        # that of the (m, r) factor, which is columns diag(s).
-        nuclear = float(np.linalg.svd(columns * s[surviving], compute_uv=False).sum())
-    return np.matmul(columns, kept.T @ x, out=out), nuclear
+    if wide:
+        # y = [U_r diag(shrunk / s)] [U_r^T x]; the first factor times diag(s) is U_r diag(shrunk).
+        columns, rows, column_scale = kept * factors, kept.T @ x, s[surviving]
+    else:
+        # y = [x V_r diag(shrunk / s)] V_r^T; the first factor is U_r diag(shrunk).
+        columns, rows, column_scale = (x @ kept) * factors, kept.T, np.ones(len(factors))
+    if left is not None and columns.shape[1]:
+        columns = left(columns)
+        # y = (left(U_r) diag(shrunk)) V_r^T with V_r orthonormal: the nuclear norm of y is
+        # that of the (m, r) factor.
+        nuclear = float(np.linalg.svd(columns * column_scale, compute_uv=False).sum())
+    return np.matmul(columns, rows, out=out), nuclear
+
+
+def top_singular_value(x: np.ndarray) -> float:
+    """Largest singular value of x (m, n), through the Gram matrix of its shorter side."""
+    gram = x @ x.T if x.shape[0] <= x.shape[1] else x.T @ x
+    return float(np.sqrt(max(np.linalg.eigvalsh(gram)[-1], 0.0)))
 
 
 def kernel_eigh(gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -55,6 +55,7 @@ __all__ = [
     "rigid_from_factor",
     "rigid_rotations",
     "significant_rank",
+    "spectrum",
 ]
 
 RotationEstimator = Literal["intersection", "rigid"]
@@ -71,6 +72,11 @@ _ADMM_TOL = 1e-6
 _ADMM_MAX_ITER = 2000
 # Largest number of directions of W the joint fit works in (H is 3n x 3n).
 _MAX_FIT_RANK = 30
+# Longer sequences fit the corrective triples on this many frames spread evenly over the
+# sequence (the triples do not depend on the frame), and every frame's rotation then follows
+# from the fitted triples in closed form (_rotations_from_triples): the L-BFGS fit costs
+# O(F) per iteration and needs more iterations for more frames.
+_MAX_FIT_FRAMES = 200
 # L-BFGS fit of the rotations to the motion factor (_refine_rotations): relative decrease of
 # the misfit at which to stop, and iteration budget (tens to hundreds are used).
 _REFINE_TOL = 1e-10
@@ -245,7 +251,7 @@ def _check_n_bases(n_bases: int, n_frames: int, n_points: int) -> None:
         )
 
 
-class _Spectrum(NamedTuple):
+class Spectrum(NamedTuple):
     """Left singular vectors and singular values of W, and its row Gram matrix if formed."""
 
     left: np.ndarray  # (2F, m), m = min(2F, P), decreasing singular values
@@ -253,7 +259,7 @@ class _Spectrum(NamedTuple):
     gram: np.ndarray | None  # (2F, 2F) W W^T when 2F <= P, else None
 
 
-def _spectrum(W: np.ndarray) -> _Spectrum:
+def spectrum(W: np.ndarray) -> Spectrum:
     """Left singular vectors and singular values of W through the smaller Gram matrix.
 
     With 2F <= P (dense tracking) the 2F x 2F matrix ``W W^T`` costs one product over the
@@ -267,7 +273,7 @@ def _spectrum(W: np.ndarray) -> _Spectrum:
 
     Returns
     -------
-    _Spectrum
+    Spectrum
         Vectors of (numerically) zero singular values are arbitrary but orthonormal when
         2F <= P, and zero otherwise.
     """
@@ -276,7 +282,7 @@ def _spectrum(W: np.ndarray) -> _Spectrum:
         gram = W @ W.T
         eigenvalues, U = np.linalg.eigh(gram)
         eigenvalues, U = eigenvalues[::-1], U[:, ::-1]
-        return _Spectrum(U, np.sqrt(np.clip(eigenvalues, 0.0, None)), gram)
+        return Spectrum(U, np.sqrt(np.clip(eigenvalues, 0.0, None)), gram)
     eigenvalues, V = np.linalg.eigh(W.T @ W)
     eigenvalues, V = eigenvalues[::-1], V[:, ::-1]
     s = np.sqrt(np.clip(eigenvalues, 0.0, None))
@@ -284,7 +290,7 @@ def _spectrum(W: np.ndarray) -> _Spectrum:
     positive = s > 0
     U[:, positive] /= s[positive]
     U[:, ~positive] = 0.0
-    return _Spectrum(U, s, None)
+    return Spectrum(U, s, None)
 
 
 def _gavish_donoho_threshold(s: np.ndarray, aspect: float) -> float:
@@ -378,7 +384,7 @@ def choose_n_bases(W: np.ndarray, max_bases: int = 10) -> int:
     if max_bases < 1:
         raise ValueError(f"max_bases must be a positive integer, got {max_bases!r}")
     W = _check_measurements(W)
-    return _n_bases_from_spectrum(_spectrum(W).singular, W.shape, int(max_bases))
+    return _n_bases_from_spectrum(spectrum(W).singular, W.shape, int(max_bases))
 
 
 # ----------------------------------------------------------------------------------------
@@ -444,7 +450,7 @@ def rigid_from_factor(M: np.ndarray) -> np.ndarray:
     return rotations if M.ndim == 3 else rotations[0]
 
 
-def _rigid_from_spectrum(spectrum: _Spectrum) -> np.ndarray:
+def _rigid_from_spectrum(spectrum: Spectrum) -> np.ndarray:
     """Tomasi-Kanade rotations from the spectrum of W (motion factor ``U_3 S_3^{1/2}``)."""
     return rigid_from_factor(spectrum.left[:, :3] * np.sqrt(spectrum.singular[:3]))
 
@@ -477,7 +483,7 @@ def rigid_rotations(W: np.ndarray) -> np.ndarray:
     """
     W = _check_measurements(W)
     _check_n_bases(1, W.shape[0] // 2, W.shape[1])
-    return _rigid_from_spectrum(_spectrum(W))
+    return _rigid_from_spectrum(spectrum(W))
 
 
 # ----------------------------------------------------------------------------------------
@@ -691,6 +697,14 @@ class _MotionFit:
         gradient = -2.0 * np.einsum("fk,fkib->fib", coefficients, blocks)
         return float(eigenvalues[: self.n_triples].sum()), gradient, eigenvalues
 
+    def triples(self, R: np.ndarray) -> np.ndarray:
+        """The best corrective triples for rotations R, shape (n, 3, k) (``G_k = [..., k]``)."""
+        n_frames, n = self.blocks.shape[0], self.blocks.shape[2]
+        r = R / math.sqrt(2.0)
+        projected = np.einsum("fim,fib->fmb", self.blocks, r).reshape(n_frames, 3 * n)
+        _, eigenvectors = np.linalg.eigh(self.lifted_gram - projected.T @ projected)
+        return eigenvectors[:, : self.n_triples].reshape(n, 3, -1)
+
 
 def _refine_rotations(
     fit: _MotionFit, R: np.ndarray, *, tol: float, max_iter: int
@@ -834,6 +848,12 @@ def _synchronise_signs(rotations: np.ndarray, W: np.ndarray, gram: np.ndarray | 
     else:
         back_projected = np.einsum("fia,fip->fap", rotations, W.reshape(n_frames, 2, -1))
         back_projected = back_projected.reshape(n_frames, -1)
+        if back_projected.shape[0] > back_projected.shape[1]:
+            # Long sequences of few points: the top eigenvector of H = X X^T is X v for the
+            # top eigenvector v of the smaller X^T X (3P x 3P), O(F P^2) instead of O(F^3).
+            _, right = np.linalg.eigh(back_projected.T @ back_projected)
+            top = back_projected @ right[:, -1]
+            return rotations * np.where(top >= 0.0, 1.0, -1.0)[:, None, None]
         H = back_projected @ back_projected.T
     _, eigenvectors = np.linalg.eigh(H)
     signs = np.where(eigenvectors[:, -1] >= 0.0, 1.0, -1.0)
@@ -841,7 +861,7 @@ def _synchronise_signs(rotations: np.ndarray, W: np.ndarray, gram: np.ndarray | 
 
 
 def _intersection_from_spectrum(
-    W: np.ndarray, spectrum: _Spectrum, n_bases: int, seed: int
+    W: np.ndarray, spectrum: Spectrum, n_bases: int, seed: int
 ) -> np.ndarray:
     """Body of :func:`intersection_rotations` for a validated W and its spectrum."""
     s = spectrum.singular
@@ -959,7 +979,7 @@ def _relaxation_starts(Pi: np.ndarray, seed: int) -> tuple[list[np.ndarray] | No
 
 
 def _intersection_with(
-    W: np.ndarray, spectrum: _Spectrum, n_bases: int, seed: int
+    W: np.ndarray, spectrum: Spectrum, n_bases: int, seed: int
 ) -> tuple[np.ndarray | None, str | None]:
     """Intersection rotations with at most ``n_bases >= 2`` bases.
 
@@ -992,7 +1012,13 @@ def _intersection_with(
                 f"{np.array2string(eigenvalues[:4], precision=3)})"
             )
         starts.append(_rigid_from_spectrum(spectrum))
-        rotations, n_exact, excess = _fit_triples(W.shape, U[:, :n], s, n_bases, starts)
+        frames = _fit_frames(W.shape[0] // 2)
+        rows = (2 * frames[:, None] + np.arange(2)).reshape(-1)
+        rotations, n_exact, excess, fit, weights = _fit_triples(
+            W.shape, U[rows, :n], s, n_bases, [start[frames] for start in starts]
+        )
+        if len(frames) < W.shape[0] // 2:
+            rotations = _rotations_from_triples(fit.triples(rotations), U[:, :n] * weights)
     if n_exact == 0:
         warnings.warn(
             f"no corrective triple fits W within its noise (the best triple's misfit is "
@@ -1044,8 +1070,12 @@ def _fit_triples(
         the best fit of one triple).
     excess : float
         Misfit of the first inexact triple over the noise level (huge without noise).
+    fit : _MotionFit
+        The last fit (of the rows of U given).
+    weights : ndarray of shape (n,)
+        The column weights of its motion factor, ``U * weights``.
     """
-    n_frames, n = shape[0] // 2, U.shape[1]
+    n_frames, n = U.shape[0] // 2, U.shape[1]
     sigma2 = _noise_variance(s, shape, n)
     # Misfit of one triple from the noise alone, in the units of the test factor below: the
     # 2 x 3 block of a unit triple carries noise of total variance 2 sigma^2 / s_1^2 in every
@@ -1107,11 +1137,56 @@ def _fit_triples(
     # not refined so: it fixes the rotations only weakly along the other (nearly exact)
     # triples, and U S, which makes the weak directions count less, let them drift (from 0.7
     # to 17 degrees on face4 with 1 % noise).
+    weights = np.sqrt(s[:n] / s[0])
     if k > 1:
+        fit, weights = _MotionFit(test_motion, k), s[:n] / s[0]
         rotations, _, _ = _refine_rotations(
-            _MotionFit(test_motion, k), rotations, tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER
+            fit, rotations, tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER
         )
-    return rotations, n_exact, excess
+    return rotations, n_exact, excess, fit, weights
+
+
+def _fit_frames(n_frames: int) -> np.ndarray:
+    """Frames the joint fit of the triples uses: all, or _MAX_FIT_FRAMES spread evenly."""
+    if n_frames <= _MAX_FIT_FRAMES:
+        return np.arange(n_frames)
+    return np.unique(np.linspace(0, n_frames - 1, _MAX_FIT_FRAMES).round().astype(np.int64))
+
+
+def _rotations_from_triples(
+    triples: np.ndarray, motion: np.ndarray, sweeps: int = 20
+) -> np.ndarray:
+    """Every frame's rotation from corrective triples fitted on a subset of the frames.
+
+    The triples ``G_k`` do not depend on the frame: frame f's rotation maximises
+    ``sum_k <Pi_f G_k, R_f>^2`` (the misfit of :class:`_MotionFit` for fixed triples), found
+    by the fixed-point iteration ``R_f <- polar(sum_k <Pi_f G_k, R_f> Pi_f G_k)`` from the
+    polar factor of the frame's strongest block; each sweep increases the objective. O(F k n)
+    in all; the sign of each frame is left to :func:`_synchronise_signs`.
+
+    Parameters
+    ----------
+    triples : ndarray of shape (n, 3, k)
+        The fitted triples (:meth:`_MotionFit.triples`).
+    motion : ndarray of shape (2F, n)
+        The motion factor of all frames, weighted as the fit's.
+    sweeps : int
+        Fixed-point iterations.
+
+    Returns
+    -------
+    ndarray of shape (F, 2, 3)
+    """
+    n_frames = motion.shape[0] // 2
+    blocks = np.einsum(
+        "fim,mbk->fkib", motion.reshape(n_frames, 2, -1), triples, optimize=True
+    )  # Pi_f G_k, (F, k, 2, 3)
+    strongest = np.argmax(np.einsum("fkib,fkib->fk", blocks, blocks), axis=1)
+    rotations = project_to_stiefel(blocks[np.arange(n_frames), strongest])
+    for _ in range(sweeps):
+        coefficients = np.einsum("fkib,fib->fk", blocks, rotations)
+        rotations = project_to_stiefel(np.einsum("fk,fkib->fib", coefficients, blocks))
+    return rotations
 
 
 def intersection_rotations(W: np.ndarray, n_bases: int, *, seed: int = 0) -> np.ndarray:
@@ -1188,7 +1263,7 @@ def intersection_rotations(W: np.ndarray, n_bases: int, *, seed: int = 0) -> np.
     """
     W = _check_measurements(W)
     _check_n_bases(n_bases, W.shape[0] // 2, W.shape[1])
-    return _intersection_from_spectrum(W, _spectrum(W), int(n_bases), seed)
+    return _intersection_from_spectrum(W, spectrum(W), int(n_bases), seed)
 
 
 # ----------------------------------------------------------------------------------------
@@ -1242,12 +1317,12 @@ def estimate_rotations(
     n_frames, n_points = W.shape[0] // 2, W.shape[1]
     if method == "rigid":
         _check_n_bases(1, n_frames, n_points)
-        return _rigid_from_spectrum(_spectrum(W))
+        return _rigid_from_spectrum(spectrum(W))
     if n_bases is not None:
         _check_n_bases(n_bases, n_frames, n_points)
     # One spectrum serves both the choice of K and the factorisation.
-    spectrum = _spectrum(W)
+    decomposition = spectrum(W)
     if n_bases is None:
-        n_bases = _n_bases_from_spectrum(spectrum.singular, W.shape, 10)
+        n_bases = _n_bases_from_spectrum(decomposition.singular, W.shape, 10)
         _check_n_bases(n_bases, n_frames, n_points)
-    return _intersection_from_spectrum(W, spectrum, int(n_bases), seed)
+    return _intersection_from_spectrum(W, decomposition, int(n_bases), seed)

@@ -8,12 +8,12 @@ from collections.abc import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import __version__, admm, camera, cameras, clustering, defaults, pta
+from moju_core import __version__, admm, camera, cameras, clustering, defaults, lrr, pta
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams
 from moju_core.preprocessing import normalise
 from moju_core.result import Progress, Result
-from moju_core.rotations import noise_variance, significant_rank
+from moju_core.rotations import noise_variance, significant_rank, spectrum
 from moju_core.smoothness import choose_smoothness
 from moju_core.validation import check_measurements, check_rotations
 
@@ -138,17 +138,17 @@ def _reconstruct(
 
     report("rotations")
     tic = time.perf_counter()
-    gram = centred @ centred.T  # (2F, 2F); small when P < 2F too
-    eigenvalues, left = np.linalg.eigh(gram)
-    singular = np.sqrt(np.clip(eigenvalues[::-1], 0.0, None))[: min(centred.shape)]
-    signal_basis = left[:, ::-1][:, : significant_rank(singular, centred.shape)]
+    # Through the smaller of W W^T (2F x 2F) and W^T W (P x P): O(F P min(F, P)).
+    decomposition = spectrum(centred)
+    singular = decomposition.singular
+    signal_basis = decomposition.left[:, : significant_rank(singular, centred.shape)]
     # Relative to the mean square of the normalised tracks, which is 1.
     noise = noise_variance(singular, centred.shape)
     if params.rotations == "known":
         estimate = cameras.CameraEstimate(rotations, "known")
     else:
         estimate = cameras.estimate_cameras(
-            centred, params.rotations, n_bases=params.n_bases, seed=params.seed, gram=gram
+            centred, params.rotations, n_bases=params.n_bases, seed=params.seed, singular=singular
         )
         rotations = estimate.rotations
     n_bases = estimate.n_bases if estimate.n_bases is not None else params.n_bases
@@ -158,7 +158,7 @@ def _reconstruct(
     tic = time.perf_counter()
     tracks = centred.reshape(n_frames, 2, n_points)
     initial = np.einsum("fji,fjp->fip", rotations, tracks).reshape(n_frames, 3 * n_points)
-    top = float(np.sqrt(max(np.linalg.eigvalsh(initial @ initial.T)[-1], 0.0)))
+    top = lrr.top_singular_value(initial)
     del initial  # (F, 3P): do not hold it through the loop
     params = defaults.resolve(params, n_frames, n_points, top, rotations=rotations)
     params = params.model_copy(update={"n_bases": n_bases})

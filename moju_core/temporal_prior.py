@@ -8,6 +8,9 @@ constant velocity and lets a frame's unseen depth borrow from the neighbouring f
 see that direction in their image plane when the camera turns (the trajectory-space argument
 of Akhter et al., NIPS 2008, without a fixed basis). With ``gamma = 0`` the loop is the paper's.
 
+``D^T D`` is pentadiagonal, and everything here uses that structure: no F x F matrix is ever
+formed, and every operation costs O(F) per column.
+
 **Fixed cameras: a filter after the S# step.** After the singular value threshold
 (Algorithm 1, step 10) the result is passed through the proximal operator of the prior at the
 current penalty,
@@ -16,7 +19,8 @@ current penalty,
 
 a splitting of the step's two terms (each proximal operator in turn). ``G_rho`` acts on the
 frames only, so it filters the temporal factor of the thresholded S#: with ``S# = U Sigma V^T``
-of rank r the result is ``(G_rho U) Sigma V^T``, for F x F x r operations - nearly free.
+of rank r the result is ``(G_rho U) Sigma V^T``, one pentadiagonal solve with r right-hand
+sides (:class:`FrameFilter`), O(F r).
 
 **Cameras refined in the loop: the exact S-update.** When the loop also re-fits the rotations
 to S# (windowed cameras, :mod:`moju_core.cameras`), the splitting is not enough: measured at
@@ -25,20 +29,12 @@ prior solved exactly. The S-update (step 1) then couples the frames:
 
     (R^T R + rho I + gamma (D^T D kron I_3)) S = R^T W + rho T
 
-for every point (one 3F x 3F system shared by all columns). Its matrix is
-``B - N N^T`` with ``B = ((1 + rho) I_F + gamma D^T D) kron I_3`` (per coordinate, a filter
-along the frames) and ``N`` the 3F x F matrix of the viewing directions (``R_f^T R_f = I -
-n_f n_f^T``). The Woodbury identity solves it with two F x F filters and one F x F solve per
-column block, never forming a 3F x 3F matrix:
-
-    S = Y + G (n * u),   Y = G X,   u = C^{-1} (n . Y),
-    G = ((1 + rho) I + gamma D^T D)^{-1},   C_fg = delta_fg - G[f, g] (n_f . n_g)
-
-where ``X`` is the right-hand side, ``n . Y`` is the per-frame dot product with the viewing
-direction and ``n * u`` puts ``u_f`` along ``n_f``. ``C`` is positive definite
-(``N^T B^{-1} N <= I / (1 + rho)``). It costs about 4 times the plain S-update, which is why
-the fixed-camera case uses the filter: with known rotations both give the same e3D to within
-2 % on the sheets and face3 (2,000 points, weights 0-1,000).
+for every point (one 3F x 3F system shared by all columns). In the interleaved order of the
+trajectory form (row ``3f + c``) its matrix is symmetric positive definite and banded with 8
+off-diagonals: ``R_f^T R_f = I - n_f n_f^T`` couples the three coordinates of a frame, and
+``D^T D`` couples frame f to frames f +- 1 and f +- 2 (rows 3 and 6 apart). One banded Cholesky
+factorisation (O(F)) and a banded solve for the P columns (O(F P)) replace the dense system
+(:func:`smooth_data_step`).
 """
 
 from __future__ import annotations
@@ -46,29 +42,55 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy.linalg import cho_solve_banded, cholesky_banded, solveh_banded
+
+#: Off-diagonals of the S-update's banded matrix in the interleaved (3f + c) order: frame f is
+#: coupled to frame f + 2, six rows further, and a frame's own 3 x 3 block adds two more.
+S_UPDATE_BANDS = 8
 
 
 class TemporalPrior(NamedTuple):
-    """Eigendecomposition ``D^T D = V diag(values) V^T`` of the second-difference penalty.
+    """The second-difference penalty ``D^T D`` in banded form, and its weight.
 
-    values : ndarray of shape (F,), >= 0 (two zeros: constant and linear motion are free).
-    vectors : ndarray of shape (F, F), orthonormal columns.
+    bands : ndarray of shape (3, F)
+        Upper banded storage of the pentadiagonal ``D^T D`` (the layout of
+        :func:`scipy.linalg.solveh_banded`): ``bands[2 + i - j, j] = (D^T D)[i, j]``.
     weight : float
         gamma, the weight of the prior relative to the data term (scale-normalised tracks).
     """
 
-    values: np.ndarray
-    vectors: np.ndarray
+    bands: np.ndarray
     weight: float
+
+    @property
+    def n_frames(self) -> int:
+        return self.bands.shape[1]
 
 
 def second_differences(n_frames: int) -> np.ndarray:
-    """The second-difference matrix D along the frames, shape (max(F - 2, 0), F).
+    """The second-difference matrix D along the frames, shape (max(F - 2, 0), F), dense.
 
     Row f is ``e_f - 2 e_{f+1} + e_{f+2}``; with fewer than three frames it has no rows (no
-    acceleration to penalise).
+    acceleration to penalise). For tests and small examples: the solver uses
+    :func:`penalty_bands`.
     """
     return np.diff(np.eye(n_frames), n=2, axis=0)
+
+
+def penalty_bands(n_frames: int) -> np.ndarray:
+    """``D^T D`` for F frames in upper banded storage, shape (3, F), built in O(F).
+
+    Each row ``(1, -2, 1)`` of D at frames (r, r + 1, r + 2) adds its outer product: 1, 4, 1 on
+    the diagonal, -2, -2 on the first off-diagonal and 1 on the second.
+    """
+    bands = np.zeros((3, n_frames))
+    rows = np.arange(max(n_frames - 2, 0))
+    for offset, weight in ((0, 1.0), (1, 4.0), (2, 1.0)):
+        np.add.at(bands[2], rows + offset, weight)
+    for offset in (1, 2):
+        np.add.at(bands[1], rows + offset, -2.0)  # entry (r + offset - 1, r + offset)
+    bands[0, rows + 2] += 1.0  # entry (r, r + 2)
+    return bands
 
 
 def temporal_prior(n_frames: int, weight: float) -> TemporalPrior:
@@ -76,35 +98,66 @@ def temporal_prior(n_frames: int, weight: float) -> TemporalPrior:
     :func:`smooth_data_step`."""
     if weight < 0 or not np.isfinite(weight):
         raise ValueError(f"the smoothness weight must be a finite number >= 0, got {weight!r}")
-    difference = second_differences(n_frames)
-    values, vectors = np.linalg.eigh(difference.T @ difference)
-    return TemporalPrior(np.clip(values, 0.0, None), vectors, float(weight))
+    return TemporalPrior(penalty_bands(n_frames), float(weight))
 
 
-def smoothing_filter(prior: TemporalPrior, rho: float) -> np.ndarray:
-    """Proximal operator of the prior at penalty rho, as a matrix on the frames.
+class FrameFilter:
+    """The proximal operator of the prior at penalty rho, ``G_rho = (I + (gamma/rho) D^T D)^-1``.
 
-    ``argmin_Y gamma/2 ||D Y||^2 + rho/2 ||Y - X||^2 = G X`` with
-    ``G = (I + (gamma / rho) D^T D)^{-1} = V diag(1 / (1 + (gamma / rho) lambda)) V^T``.
+    ``argmin_Y gamma/2 ||D Y||^2 + rho/2 ||Y - X||^2 = G_rho X``. Calling it on an (F, r)
+    array applies ``G_rho`` by a pentadiagonal solve, O(F r); constant and linear motion pass
+    unchanged and every other direction is damped (eigenvalues in (0, 1]).
+    """
+
+    def __init__(self, prior: TemporalPrior, rho: float) -> None:
+        self.bands = (prior.weight / rho) * prior.bands
+        self.bands[2] += 1.0
+
+    def __call__(self, columns: np.ndarray) -> np.ndarray:
+        """``G_rho @ columns`` for columns of shape (F,) or (F, r)."""
+        if columns.shape[0] < 3:
+            return columns.copy()  # no second differences: G_rho = I
+        return solveh_banded(self.bands, columns, check_finite=False)
+
+    def matrix(self) -> np.ndarray:
+        """``G_rho`` as a dense (F, F) matrix (for tests and small examples only)."""
+        return self(np.eye(self.bands.shape[1]))
+
+
+def smoothing_filter(prior: TemporalPrior, rho: float) -> FrameFilter:
+    """The filter that follows the S# step when the cameras are fixed (:class:`FrameFilter`)."""
+    return FrameFilter(prior, rho)
+
+
+def s_update_bands(normals: np.ndarray, rho: float, prior: TemporalPrior) -> np.ndarray:
+    """The exact S-update's matrix ``R^T R + rho I + gamma D^T D kron I_3``, banded.
 
     Parameters
     ----------
-    prior : TemporalPrior
+    normals : ndarray of shape (F, 3)
+        Unit viewing directions (``R_f^T R_f = I - n_f n_f^T``).
     rho : float
         Penalty, > 0.
+    prior : TemporalPrior
 
     Returns
     -------
-    ndarray of shape (F, F)
-        Symmetric, eigenvalues in (0, 1]; constant and linear motion pass unchanged.
+    ndarray of shape (S_UPDATE_BANDS + 1, 3F)
+        Upper banded storage, ``bands[8 + i - j, j] = A[i, j]`` in the order ``3f + c``.
     """
-    gains = 1.0 / (1.0 + (prior.weight / rho) * prior.values)
-    return (prior.vectors * gains) @ prior.vectors.T
-
-
-def filter_matrix(prior: TemporalPrior, rho: float) -> np.ndarray:
-    """``G_rho = ((1 + rho) I + gamma D^T D)^{-1}`` (F x F, symmetric positive definite)."""
-    return (prior.vectors / (1.0 + rho + prior.weight * prior.values)) @ prior.vectors.T
+    n_frames = normals.shape[0]
+    top = S_UPDATE_BANDS
+    bands = np.zeros((top + 1, 3 * n_frames))
+    frames = 3 * np.arange(n_frames)
+    for c in range(3):
+        bands[top, frames + c] = 1.0 + rho - normals[:, c] ** 2
+        # Frame f with frames f - 1 and f - 2, same coordinate: rows 3 and 6 apart.
+        bands[top - 3, frames + c] = prior.weight * prior.bands[1]
+        bands[top - 6, frames + c] = prior.weight * prior.bands[0]
+        bands[top, frames + c] += prior.weight * prior.bands[2]
+    for a, b in ((0, 1), (0, 2), (1, 2)):  # within a frame: -n_a n_b at (3f + a, 3f + b)
+        bands[top - (b - a), frames + b] = -normals[:, a] * normals[:, b]
+    return bands
 
 
 def smooth_data_step(
@@ -115,9 +168,10 @@ def smooth_data_step(
     prior: TemporalPrior,
     out: np.ndarray,
 ) -> np.ndarray:
-    """S-update with the temporal prior (see the module docstring for the formulas).
+    """S-update with the temporal prior (see the module docstring).
 
-    Solves ``(R^T R + rho I + gamma D^T D kron I_3) S = R^T W + rho T`` for every point.
+    Solves ``(R^T R + rho I + gamma D^T D kron I_3) S = R^T W + rho T`` for every point by one
+    banded Cholesky factorisation, O(F), and a banded solve of the P columns, O(F P).
 
     Parameters
     ----------
@@ -140,22 +194,11 @@ def smooth_data_step(
         ``out``.
     """
     n_frames, _, n_points = out.shape
-    smoother = filter_matrix(prior, rho)
-    capacitance = np.eye(n_frames) - smoother * (normals @ normals.T)
-    # G diag(n_c) C^{-1} for each coordinate c: the correction G (n * u) with u = C^{-1} z is
-    # then three (F, F) x (F, P) products (a solve with P right-hand sides costs as much as
-    # all three).
-    corrections = [(smoother * normals[:, c]) @ np.linalg.inv(capacitance) for c in range(3)]
-    # Right-hand side X = R^T W + rho T, then Y = G X (a filter along the frames of every
-    # coordinate of every point: one (F, F) x (F, 3P) product).
-    np.multiply(target, rho, out=out)
-    out += back_projected
-    filtered = np.matmul(smoother, out.reshape(n_frames, -1), out=target.reshape(n_frames, -1))
-    filtered = filtered.reshape(n_frames, 3, n_points)
-    along_view = filtered[:, 0, :] * normals[:, 0, None]  # z = n . Y, (F, P)
-    along_view += filtered[:, 1, :] * normals[:, 1, None]
-    along_view += filtered[:, 2, :] * normals[:, 2, None]
-    for c in range(3):
-        np.matmul(corrections[c], along_view, out=out[:, c, :])
-        out[:, c, :] += filtered[:, c, :]
+    factor = cholesky_banded(s_update_bands(normals, rho, prior), check_finite=False)
+    np.multiply(target, rho, out=target)
+    target += back_projected
+    # LAPACK wants each right-hand side (a point's 3F-vector) contiguous: one transposing copy.
+    rhs = np.asfortranarray(target.reshape(3 * n_frames, n_points))
+    solution = cho_solve_banded((factor, False), rhs, overwrite_b=True, check_finite=False)
+    out.reshape(3 * n_frames, n_points)[...] = solution
     return out

@@ -13,8 +13,10 @@ rotations together with the shapes (:func:`moju_core.rotations.fit_rotations_to_
 Dai et al.'s intersection method instead needs the shapes to be a combination of a few
 shape bases, which a rolling sheet or a travelling wave is not with only tens of frames.
 
-Everything here works on the row Gram matrix ``W W^T`` (2F x 2F): its diagonal blocks are
-the windows' Gram matrices, so no pass over the P points is made after that one product.
+Everything here works on the blocks of the row Gram matrix ``W W^T`` near its diagonal
+(:class:`moju_core.row_gram.RowGram`): they are the windows' Gram matrices, so no pass over the
+P points is made after that one product, and for long sequences only the diagonals within the
+longest window are formed (O(F) memory and time per window length).
 
 :func:`short_time_rigidity` measures how well given rotations explain the tracks as rigid over
 every three consecutive frames; :mod:`moju_core.cameras` uses it to choose between estimates.
@@ -25,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from moju_core.rotations import project_to_stiefel, rigid_from_factor
+from moju_core.row_gram import RowGram
 
 #: Window lengths (frames) tried by :func:`best_windowed_rotations`, besides the whole
 #: sequence. Short windows see less deformation, long ones more camera motion; which wins
@@ -36,7 +39,7 @@ WINDOW_LENGTHS = (6, 8, 10, 12, 15, 20, 25, 30, 40, 50)
 RIGIDITY_WINDOW = 3
 
 
-def _window_rotations(gram: np.ndarray, length: int) -> np.ndarray:
+def _window_rotations(gram: RowGram, length: int) -> np.ndarray:
     """Tomasi-Kanade rotations of every window of ``length`` consecutive frames.
 
     Returns
@@ -44,9 +47,7 @@ def _window_rotations(gram: np.ndarray, length: int) -> np.ndarray:
     ndarray of shape (F - length + 1, length, 2, 3)
         Entry ``[a, i]`` is frame ``a + i`` as seen by window a.
     """
-    n_windows = gram.shape[0] // 2 - length + 1
-    rows = 2 * np.arange(n_windows)[:, None] + np.arange(2 * length)
-    blocks = gram[rows[:, :, None], rows[:, None, :]]  # (windows, 2L, 2L)
+    blocks = gram.windows(length)  # (windows, 2L, 2L)
     eigenvalues, eigenvectors = np.linalg.eigh(blocks)
     # Motion factor U_3 S_3^(1/2) as in rigid_rotations (S: singular values, the square
     # roots of the Gram matrix's eigenvalues).
@@ -54,13 +55,13 @@ def _window_rotations(gram: np.ndarray, length: int) -> np.ndarray:
     return rigid_from_factor(eigenvectors[:, :, -3:] * weights[:, None, :])
 
 
-def windowed_rotations(gram: np.ndarray, window: int) -> np.ndarray:
+def windowed_rotations(gram: RowGram, window: int) -> np.ndarray:
     """Rotations of every frame from rigid factorisations of overlapping windows.
 
     Parameters
     ----------
-    gram : ndarray of shape (2F, 2F)
-        ``W W^T`` of the centred tracks.
+    gram : RowGram
+        Blocks of ``W W^T`` of the centred tracks, reaching at least ``window`` frames.
     window : int
         Frames per window, ``3 <= window <= F``; ``window = F`` is the rigid method.
 
@@ -69,7 +70,7 @@ def windowed_rotations(gram: np.ndarray, window: int) -> np.ndarray:
     ndarray of shape (F, 2, 3)
         Rotations with orthonormal rows, up to one global rotation and reflection.
     """
-    n_frames = gram.shape[0] // 2
+    n_frames = gram.n_frames
     if not 3 <= window <= n_frames:
         raise ValueError(f"window must be between 3 and the number of frames {n_frames}")
     total = np.zeros((n_frames, 2, 3))
@@ -89,7 +90,7 @@ def windowed_rotations(gram: np.ndarray, window: int) -> np.ndarray:
     return project_to_stiefel(total / count[:, None, None])
 
 
-def short_time_rigidity(gram: np.ndarray, rotations: np.ndarray) -> float:
+def short_time_rigidity(gram: RowGram, rotations: np.ndarray) -> float:
     """Misfit of the tracks to a rigid shape over every three consecutive frames.
 
     For each window of ``RIGIDITY_WINDOW`` frames with stacked rotations ``R_w`` (6 x 3) the
@@ -101,8 +102,8 @@ def short_time_rigidity(gram: np.ndarray, rotations: np.ndarray) -> float:
 
     Parameters
     ----------
-    gram : ndarray of shape (2F, 2F)
-        ``W W^T`` of the centred tracks.
+    gram : RowGram
+        Blocks of ``W W^T`` of the centred tracks.
     rotations : ndarray of shape (F, 2, 3)
 
     Returns
@@ -113,8 +114,7 @@ def short_time_rigidity(gram: np.ndarray, rotations: np.ndarray) -> float:
     n_frames = rotations.shape[0]
     window = min(RIGIDITY_WINDOW, n_frames)
     n_windows = n_frames - window + 1
-    rows = 2 * np.arange(n_windows)[:, None] + np.arange(2 * window)
-    blocks = gram[rows[:, :, None], rows[:, None, :]]  # (windows, 2w, 2w)
+    blocks = gram.windows(window)  # (windows, 2w, 2w)
     stacked = rotations[np.arange(n_windows)[:, None] + np.arange(window)]
     stacked = stacked.reshape(n_windows, 2 * window, 3)
     # Orthonormal bases of the columns of R_w (rank 2 if the camera did not turn: the
@@ -126,17 +126,21 @@ def short_time_rigidity(gram: np.ndarray, rotations: np.ndarray) -> float:
     return float(max(energy - explained, 0.0) / energy) if energy > 0 else 0.0
 
 
-def best_windowed_rotations(gram: np.ndarray) -> tuple[np.ndarray, int, float]:
+def best_windowed_rotations(gram: RowGram, rigid: np.ndarray) -> tuple[np.ndarray, int, float]:
     """The windowed rotations of the window length that is most rigid over three frames.
 
-    Tries every length of :data:`WINDOW_LENGTHS` that fits the sequence, and the whole
+    Tries every length of :data:`WINDOW_LENGTHS` shorter than the sequence, and the whole
     sequence (the rigid estimate), and keeps the one with the smallest
     :func:`short_time_rigidity`.
 
     Parameters
     ----------
-    gram : ndarray of shape (2F, 2F)
-        ``W W^T`` of the centred tracks (F >= 3).
+    gram : RowGram
+        Blocks of ``W W^T`` of the centred tracks (F >= 3), reaching
+        ``max(WINDOW_LENGTHS)`` frames.
+    rigid : ndarray of shape (F, 2, 3)
+        Tomasi-Kanade rotations of the whole sequence
+        (:func:`moju_core.rotations.rigid_rotations`).
 
     Returns
     -------
@@ -146,11 +150,14 @@ def best_windowed_rotations(gram: np.ndarray) -> tuple[np.ndarray, int, float]:
     rigidity : float
         Its :func:`short_time_rigidity`.
     """
-    n_frames = gram.shape[0] // 2
-    lengths = [length for length in WINDOW_LENGTHS if length < n_frames] + [n_frames]
+    n_frames = gram.n_frames
+    candidates = [
+        (windowed_rotations(gram, length), length)
+        for length in WINDOW_LENGTHS
+        if length < n_frames
+    ] + [(rigid, n_frames)]
     best: tuple[np.ndarray, int, float] | None = None
-    for length in lengths:
-        rotations = windowed_rotations(gram, length)
+    for rotations, length in candidates:
         rigidity = short_time_rigidity(gram, rotations)
         if best is None or rigidity < best[2]:
             best = (rotations, length, rigidity)

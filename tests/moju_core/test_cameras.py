@@ -10,7 +10,8 @@ from moju_core import cameras, windowed_rotations
 from moju_core.datasets import make_sequence
 from moju_core.metrics import rotation_error_deg
 from moju_core.preprocessing import normalise
-from moju_core.rotations import estimate_rotations
+from moju_core.rotations import estimate_rotations, rigid_rotations
+from moju_core.row_gram import RowGram
 
 
 def _centred(name: str, n_points: int = 1000, noise: float = 0.0) -> tuple[np.ndarray, object]:
@@ -39,7 +40,9 @@ def test_auto_takes_the_windowed_rotations_of_sheets(name, noise):
         warnings.simplefilter("error")
         estimate = cameras.estimate_cameras(W, "auto")
     assert estimate.source == "windowed" and estimate.refine
-    rotations, window, _ = windowed_rotations.best_windowed_rotations(W @ W.T)
+    rotations, window, _ = windowed_rotations.best_windowed_rotations(
+        RowGram(W, max(windowed_rotations.WINDOW_LENGTHS)), rigid_rotations(W)
+    )
     assert estimate.window == window
     assert_allclose(estimate.rotations, rotations)
     assert estimate.rigidity["windowed"] < cameras.AUTO_MARGIN * estimate.rigidity["intersection"]

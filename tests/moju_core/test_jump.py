@@ -83,3 +83,28 @@ def test_jump_keeps_neighbouring_groups_closer_than_others():
                 projection_distance_sq(thetas[i], thetas[j])
             )
     assert np.mean(same) < np.mean(other)
+
+
+def test_update_map_with_few_groups_solves_the_eigenproblem_in_their_span():
+    # K p = 12 directions in R^90 (few groups, a long sequence): the map must lie in the span
+    # of the Omega_i and satisfy A x = mu D x there, with mu among the smallest.
+    bases, weights, delta, _ = _problem(seed=3, n=90, p=3, k=4, d=5)
+    _, omegas = jump.low_dimensional_points(delta, bases)
+    new = jump.update_map(delta, omegas, weights)
+    assert new.shape == (90, 5)
+    assert abs(_trace_constraint(new, omegas, weights) - 1.0) < 1e-8
+    span = np.linalg.qr(omegas.transpose(1, 0, 2).reshape(90, -1))[0]
+    assert_allclose(span @ (span.T @ new), new, atol=1e-10)
+    degrees = weights.sum(axis=1)
+    laplacian = np.diag(degrees) - weights
+    blocks = omegas @ (np.swapaxes(omegas, 1, 2) @ delta)
+    a = np.einsum("ij,ind,jmd->nm", laplacian, blocks, blocks)
+    a = 0.5 * (a + a.T)
+    b = np.einsum("k,knp,kmp->nm", degrees, omegas, omegas)
+    reduced_a, reduced_b = span.T @ a @ span, span.T @ b @ span
+    values = np.sort(np.real(np.linalg.eigvals(np.linalg.solve(reduced_b, reduced_a))))
+    for column in new.T:
+        x = span.T @ column
+        mu = (x @ reduced_a @ x) / (x @ reduced_b @ x)
+        assert_allclose(reduced_a @ x, mu * (reduced_b @ x), atol=1e-8 * np.abs(reduced_a).max())
+        assert mu <= values[4] + 1e-8 * abs(values).max()

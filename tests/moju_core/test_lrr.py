@@ -92,14 +92,29 @@ def test_svt_keeping_the_top_values_is_the_prox_of_the_partial_sum(keep):
         assert objective(y + 1e-2 * rng.standard_normal(x.shape)) >= best - 1e-12
 
 
-def test_svt_with_a_left_filter_filters_the_thresholded_result():
+@pytest.mark.parametrize("shape", [(7, 40), (40, 7)])
+def test_svt_with_a_left_filter_filters_the_thresholded_result(shape):
     rng = np.random.default_rng(6)
-    x = rng.standard_normal((7, 40))
-    left = rng.standard_normal((7, 7))
-    left = left @ left.T / 7  # any matrix; the temporal prior's filter is symmetric
-    y, nuclear = singular_value_threshold(x, 1.1, keep=1, left=left)
+    x = rng.standard_normal(shape)
+    left = rng.standard_normal((shape[0], shape[0]))
+    left = left @ left.T / shape[0]  # any matrix; the temporal prior's filter is symmetric
+    y, nuclear = singular_value_threshold(x, 1.1, keep=1, left=lambda columns: left @ columns)
     plain, _ = singular_value_threshold(x, 1.1, keep=1)
     assert_allclose(y, left @ plain, atol=1e-10)
     assert nuclear == pytest.approx(np.linalg.svd(y, compute_uv=False).sum(), rel=1e-10)
-    with pytest.raises(ValueError, match="wide matrix"):
-        singular_value_threshold(x.T, 1.1, left=left)
+
+
+def test_svt_of_a_tall_matrix_matches_the_wide_route():
+    rng = np.random.default_rng(8)
+    x = rng.standard_normal((60, 15))  # F > 3P: the Gram matrix of the short side
+    tall, tall_norm = singular_value_threshold(x, 0.9, keep=1)
+    wide, wide_norm = singular_value_threshold(np.ascontiguousarray(x.T), 0.9, keep=1)
+    assert_allclose(tall, wide.T, atol=1e-10)
+    assert tall_norm == pytest.approx(wide_norm, rel=1e-12)
+
+
+def test_svt_with_a_left_filter_and_nothing_surviving_is_zero():
+    x = np.random.default_rng(9).standard_normal((6, 20))
+    y, nuclear = singular_value_threshold(x, 1e6, left=lambda columns: 2.0 * columns)
+    assert_allclose(y, 0.0)
+    assert nuclear == 0.0

@@ -201,7 +201,7 @@ def test_fewer_points_than_rows_uses_the_other_gram_matrix():
     # Both Gram routes give the singular values of W down to their resolution, ~sqrt(eps) s_1.
     for matrix in (W, W[:80], W[:, :60]):
         s = np.linalg.svd(matrix, compute_uv=False)
-        assert_allclose(rotations._spectrum(matrix).singular, s, rtol=1e-8, atol=1e-7 * s[0])
+        assert_allclose(rotations.spectrum(matrix).singular, s, rtol=1e-8, atol=1e-7 * s[0])
 
 
 def test_result_does_not_depend_on_units_or_seed():
@@ -217,7 +217,7 @@ def test_result_does_not_depend_on_units_or_seed():
 def test_sign_synchronisation_undoes_per_frame_sign_flips():
     W, R_true, _ = make_sequence(n_bases=3, seed=8)
     flips = np.where(np.random.default_rng(8).random(60) < 0.4, -1.0, 1.0)
-    spectrum = rotations._spectrum(W)
+    spectrum = rotations.spectrum(W)
     for gram in (spectrum.gram, None):
         R = rotations._synchronise_signs(R_true * flips[:, None, None], W, gram)
         signs = np.sign(np.einsum("fij,fij->f", R, R_true))

@@ -46,6 +46,37 @@ def test_smooth_data_step_solves_the_coupled_system(n_frames, weight, rho):
     assert_allclose(out.reshape(3 * n_frames, -1), np.linalg.solve(system, rhs), atol=1e-10)
 
 
+@pytest.mark.parametrize("n_frames", [1, 2, 3, 4, 9])
+def test_penalty_bands_hold_the_second_difference_penalty(n_frames):
+    difference = temporal_prior.second_differences(n_frames)
+    dense = difference.T @ difference
+    bands = temporal_prior.penalty_bands(n_frames)
+    for offset in range(3):
+        assert_allclose(bands[2 - offset, offset:], np.diagonal(dense, offset), atol=0)
+    assert np.all(bands[0, :2] == 0) and bands[1, 0] == 0  # unused corners of the storage
+
+
+def test_smooth_data_step_solves_long_sequences_of_few_points():
+    # F > 3P, the case a dense (3F x 3F) or (F x F) route handles worst.
+    rng = np.random.default_rng(3)
+    n_frames, n_points = 400, 5
+    rotations = project_to_stiefel(rng.standard_normal((n_frames, 2, 3)))
+    back_projected = camera.back_project(rotations, rng.standard_normal((n_frames, 2, n_points)))
+    normals = camera.viewing_directions(rotations)
+    target = rng.standard_normal((n_frames, 3, n_points))
+    out = np.empty_like(target)
+    prior = temporal_prior.temporal_prior(n_frames, 30.0)
+    temporal_prior.smooth_data_step(back_projected, normals, target.copy(), 0.2, prior, out)
+    # Residual of the normal equations, applied without forming the matrix.
+    shapes = out
+    in_plane = shapes - normals[:, :, None] * np.einsum("fc,fcp->fp", normals, shapes)[:, None]
+    flat = shapes.reshape(n_frames, -1)
+    difference = temporal_prior.second_differences(n_frames)
+    smooth = (difference.T @ (difference @ flat)).reshape(shapes.shape)
+    residual = in_plane + 0.2 * shapes + 30.0 * smooth - back_projected - 0.2 * target
+    assert np.abs(residual).max() < 1e-9
+
+
 def test_smooth_data_step_without_weight_is_the_closed_form_step():
     rng = np.random.default_rng(1)
     rotations = project_to_stiefel(rng.standard_normal((5, 2, 3)))
@@ -69,8 +100,11 @@ def test_smoothing_filter_is_the_proximal_operator_of_the_prior(weight, rho):
     n_frames = 9
     rng = np.random.default_rng(7)
     x = rng.standard_normal((n_frames, 12))
-    smoother = temporal_prior.smoothing_filter(temporal_prior.temporal_prior(n_frames, weight), rho)
-    y = smoother @ x
+    prior = temporal_prior.temporal_prior(n_frames, weight)
+    smoothing = temporal_prior.smoothing_filter(prior, rho)
+    y = smoothing(x)
+    smoother = smoothing.matrix()
+    assert_allclose(smoother @ x, y, atol=1e-12)
     difference = temporal_prior.second_differences(n_frames)
     # Optimality of gamma/2 ||D Y||^2 + rho/2 ||Y - X||^2: gamma D^T D Y + rho (Y - X) = 0.
     assert_allclose(weight * difference.T @ difference @ y + rho * (y - x), 0.0, atol=1e-10)

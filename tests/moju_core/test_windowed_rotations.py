@@ -8,7 +8,18 @@ from moju_core import windowed_rotations
 from moju_core.datasets import make_sequence
 from moju_core.metrics import rotation_error_deg
 from moju_core.preprocessing import normalise
-from moju_core.rotations import intersection_rotations, project_to_stiefel, rigid_from_factor
+from moju_core.rotations import (
+    intersection_rotations,
+    project_to_stiefel,
+    rigid_from_factor,
+    rigid_rotations,
+)
+from moju_core.row_gram import RowGram
+
+
+def _gram(W: np.ndarray) -> RowGram:
+    """Every block of W W^T (windows up to the whole sequence)."""
+    return RowGram(W, W.shape[0] // 2)
 
 
 def _turning_camera(n_frames: int, seed: int = 0) -> np.ndarray:
@@ -41,7 +52,7 @@ def _rigid_tracks(n_frames: int, n_points: int = 200, noise: float = 0.0):
 @pytest.mark.parametrize("window", [4, 8, 30])
 def test_a_rigid_object_gives_exact_rotations_for_any_window(window):
     W, truth = _rigid_tracks(30)
-    estimate = windowed_rotations.windowed_rotations(W @ W.T, window)
+    estimate = windowed_rotations.windowed_rotations(_gram(W), window)
     assert_allclose(
         estimate @ estimate.transpose(0, 2, 1), np.broadcast_to(np.eye(2), (30, 2, 2)), atol=1e-12
     )
@@ -58,7 +69,7 @@ def test_window_factorisations_match_the_single_factor_upgrade():
 
 def test_rigidity_is_zero_for_the_true_rotations_of_a_rigid_object_and_grows_with_errors():
     W, truth = _rigid_tracks(20)
-    gram = W @ W.T
+    gram = _gram(W)
     assert windowed_rotations.short_time_rigidity(gram, truth) < 1e-12
     rng = np.random.default_rng(3)
     perturbed = project_to_stiefel(truth + 0.05 * rng.standard_normal(truth.shape))
@@ -71,7 +82,7 @@ def test_rigidity_is_zero_for_the_true_rotations_of_a_rigid_object_and_grows_wit
 def test_noise_adds_half_its_variance_to_the_rigidity():
     noise = 0.02
     W, truth = _rigid_tracks(40, n_points=2000, noise=noise)
-    measured = windowed_rotations.short_time_rigidity(W @ W.T, truth)
+    measured = windowed_rotations.short_time_rigidity(_gram(W), truth)
     expected = 0.5 * noise**2 / np.mean(W**2)  # 3 unknowns per point for 6 equations
     assert measured == pytest.approx(expected, rel=0.1)
 
@@ -79,12 +90,14 @@ def test_noise_adds_half_its_variance_to_the_rigidity():
 def test_the_best_window_is_the_most_rigid_one():
     data = make_sequence("paper", n_points=1000)
     centred, _ = normalise(data.W)
-    gram = centred @ centred.T
-    rotations, window, rigidity = windowed_rotations.best_windowed_rotations(gram)
+    gram = RowGram(centred, max(windowed_rotations.WINDOW_LENGTHS))
+    rigid = rigid_rotations(centred)
+    rotations, window, rigidity = windowed_rotations.best_windowed_rotations(gram, rigid)
     candidates = [w for w in windowed_rotations.WINDOW_LENGTHS if w < data.n_frames]
-    for length in [*candidates, data.n_frames]:
-        other = windowed_rotations.windowed_rotations(gram, length)
+    others = [windowed_rotations.windowed_rotations(gram, length) for length in candidates]
+    for other in [*others, rigid]:
         assert rigidity <= windowed_rotations.short_time_rigidity(gram, other) + 1e-15
+    assert window < data.n_frames  # the rolling sheet is far from rigid over all frames
     assert_allclose(rotations, windowed_rotations.windowed_rotations(gram, window))
 
 
@@ -94,8 +107,10 @@ def test_on_a_rolling_sheet_the_windows_beat_the_shape_bases():
     # error being mostly the sheet's own turning, which the shapes absorb).
     data = make_sequence("paper", n_points=1000)
     centred, _ = normalise(data.W)
-    gram = centred @ centred.T
-    windowed, _, windowed_rigidity = windowed_rotations.best_windowed_rotations(gram)
+    gram = RowGram(centred, max(windowed_rotations.WINDOW_LENGTHS))
+    windowed, _, windowed_rigidity = windowed_rotations.best_windowed_rotations(
+        gram, rigid_rotations(centred)
+    )
     with pytest.warns(RuntimeWarning, match="no corrective triple fits W"):
         intersection = intersection_rotations(centred, 3)
     assert rotation_error_deg(windowed, data.rotations) < 30.0
@@ -108,4 +123,16 @@ def test_too_long_or_short_windows_are_refused():
     W, _ = _rigid_tracks(10)
     for window in (2, 11):
         with pytest.raises(ValueError, match="window must be between 3"):
-            windowed_rotations.windowed_rotations(W @ W.T, window)
+            windowed_rotations.windowed_rotations(_gram(W), window)
+
+
+def test_long_sequences_give_the_same_rotations_from_the_diagonals_alone():
+    W, truth = _rigid_tracks(150, n_points=20, noise=0.01)
+    banded = RowGram(W, max(windowed_rotations.WINDOW_LENGTHS))
+    assert banded.dense is None  # 150 frames: only the diagonals within 50 frames
+    for window in (6, 50):
+        assert_allclose(
+            windowed_rotations.windowed_rotations(banded, window),
+            windowed_rotations.windowed_rotations(_gram(W), window),
+            atol=1e-9,
+        )
