@@ -243,8 +243,9 @@ def target_rows(rows: list[dict]) -> list[list[str]]:
     body = []
     clean = [r for r in rows if r["noise"] == 0]
     for split in _present(clean, "split", ["design", "validation"]):
-        for name in _present(clean, "sequence", HARD_SEQUENCE_NAMES):
-            sub = [r for r in clean if r["split"] == split and r["sequence"] == name]
+        in_split = [r for r in clean if r["split"] == split]
+        for name in _present(in_split, "sequence", HARD_SEQUENCE_NAMES):
+            sub = [r for r in in_split if r["sequence"] == name]
 
             def get(source: str, variant: str, sub: list[dict] = sub) -> float | None:
                 return _average(sub, rotations=source, variant=variant)
@@ -324,13 +325,21 @@ def per_seed_table(rows: list[dict]) -> list[str]:
     )
 
 
-def report_lines(rows: list[dict]) -> list[str]:
+def report_lines(rows: list[dict], meta: dict) -> list[str]:
+    merged = []
+    if len(meta["runs"]) > 1:
+        merged = [
+            "The rows were merged from these runs (a later run replaces the rows it measured "
+            "again): " + "; ".join(f"`{command}`" for command in meta["runs"]) + ".",
+            "",
+        ]
     sizes = sorted({(r["n_frames"], r["n_points"]) for r in rows})
     variants_text = ", ".join(
         f"{label} (`{method}`{''.join(f', {k}={v}' for k, v in overrides.items())})"
         for label, (method, overrides) in VARIANTS.items()
     )
     return [
+        *merged,
         "Sequences: "
         + ", ".join(_present(rows, "sequence", HARD_SEQUENCE_NAMES))
         + "; F x P "
@@ -393,7 +402,7 @@ def write(rows: list[dict], meta: dict, out: Path) -> list[Path]:
     title = "Hard sequences: large deformations, ablations, known and estimated rotations"
     return [
         write_json(out / "hard.json", meta, rows=rows),
-        write_markdown(out / "hard.md", title, meta, report_lines(rows)),
+        write_markdown(out / "hard.md", title, meta, report_lines(rows, meta)),
         plot(rows, out / "hard.png"),
     ]
 
@@ -433,7 +442,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.merge and (out / "hard.json").exists():
         previous = json.loads((out / "hard.json").read_text())
         rows = merge(previous["rows"], rows)
-        meta["merged_with"] = previous["meta"]["command"]
+        meta["runs"] = previous["meta"].get("runs", [previous["meta"]["command"]])
+    meta["runs"] = [*meta.get("runs", []), meta["command"]]
     for path in write(rows, meta, out):
         print(f"wrote {path}")
     print(f"{len(rows)} rows, {meta['seconds'] / 60:.1f} min")
