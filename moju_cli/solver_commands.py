@@ -28,7 +28,7 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from moju_core import defaults
-from moju_core.datasets import SEQUENCE_NAMES, make_sequence
+from moju_core.datasets import HARD_SEQUENCE_NAMES, SEQUENCE_NAMES, make_sequence
 from moju_core.errors import MeasurementError
 from moju_core.io import Measurements, read_measurements, read_result, write_measurements
 from moju_core.io import write_result as write_result_file
@@ -511,7 +511,7 @@ def evaluate(result_file: str, truth_file: str, as_json: bool) -> None:
 @click.command("demo")
 @click.option(
     "--sequence",
-    type=click.Choice(SEQUENCE_NAMES),
+    type=click.Choice(SEQUENCE_NAMES + HARD_SEQUENCE_NAMES),
     default="face1",
     show_default=True,
     help="Synthetic sequence (face1: 10 frames of a face-like surface, +-30 degrees of yaw).",

@@ -10,6 +10,23 @@ redistributed, so this module generates look-alikes:
 * ``paper``: an inextensible sheet that bends and then rolls up (isometric by construction).
 * ``cloth``: a flag-like sheet with travelling waves and a slowly changing global bend.
 
+The hard sequences (:data:`HARD_SEQUENCE_NAMES`, named ``<deformation>-<camera>``) have
+large deformations that no single rigid shape approximates (best rigid e3D, per-frame
+Procrustes, between 0.13 and 0.34 for seeds 0-4 at 10,000 points), 60 frames and 10,000
+points by default:
+
+* ``flag-*``: a flag pinned along one edge with two travelling waves shorter than the flag
+  (wavelengths 0.5-0.85 of its length, amplitudes 10-12 % of it at the free edge).
+* ``roll-*``: a sheet that rolls up isometrically into a spiral of 1.2-1.5 turns.
+* ``bumps-*``: a sheet with a 4 x 4 grid of Gaussian bumps whose heights (up to 21 % of
+  the side) rise and sink into dents, neighbours half a cycle out of phase.
+
+Each under two camera motions: ``osc``, a camera oscillating +-40 degrees in yaw with a period
+of 30 frames (and +-12 degrees of pitch, period 51 frames); ``turn``, a slow turntable that
+spins the sheet about its rest normal by 3 degrees per frame, seen 45 +- 5 degrees off that
+normal. The seed changes the deformation's phases and directions and the camera's phase (and
+the turntable's sense); one seed gives the same deformation under both cameras.
+
 Every sequence is an orthographic projection ``W_f = R_f S_f + t_f`` of the true shapes, with
 per-frame image translations ``t_f`` so that translation removal is exercised; lengths are in
 "object units" (face width 2, sheet lengths about 2 and 1.4), the image is in the same units.
@@ -454,6 +471,40 @@ def _cumulative_trapezoid(values: np.ndarray, step: float) -> np.ndarray:
     return integral
 
 
+def _bend_sheet(curvature: np.ndarray, step: float, u: np.ndarray) -> np.ndarray:
+    """Points of an inextensible plane curve with the given curvature, by arc length.
+
+    Integrates ``theta = int kappa ds``, ``x = int cos(theta) ds``, ``z = int sin(theta) ds``
+    on the samples, then interpolates every frame's curve linearly at the points' arc
+    lengths (the weights are shared by all frames because the samples are).
+
+    Parameters
+    ----------
+    curvature : ndarray of shape (F, K), float64
+        Curvature (1 / object units) on K uniform arc-length samples, ``step`` apart.
+    step : float
+        Sample spacing (object units); the curve's length is ``(K - 1) * step``.
+    u : ndarray of shape (P,)
+        The points' arc lengths as fractions of the curve's length, in [0, 1].
+
+    Returns
+    -------
+    curve : ndarray of shape (F, P, 2), float64
+        In-plane (x) and out-of-plane (z) coordinates, starting at the origin along +x.
+    """
+    n_samples = curvature.shape[1]
+    tangent_angle = _cumulative_trapezoid(curvature, step)
+    curve_x = _cumulative_trapezoid(np.cos(tangent_angle), step)
+    curve_z = _cumulative_trapezoid(np.sin(tangent_angle), step)
+    position = u * (n_samples - 1)
+    left = np.minimum(position.astype(np.int64), n_samples - 2)
+    fraction = position - left
+    return np.stack(
+        [c[:, left] * (1.0 - fraction) + c[:, left + 1] * fraction for c in (curve_x, curve_z)],
+        axis=-1,
+    )
+
+
 def paper_sequence(n_frames: int = 60, n_points: int = 10_000, seed: int = 0) -> Sequence:
     """A sheet of paper (2 x 1.43, aspect 1.4) that bends and then rolls up, isometrically.
 
@@ -499,18 +550,10 @@ def paper_sequence(n_frames: int = 60, n_points: int = 10_000, seed: int = 0) ->
     curvature += (
         s_bend * np.sin(np.pi * times) * (2.0 * np.pi / length) * np.sin(2.0 * np.pi * s / length)
     )
-    tangent_angle = _cumulative_trapezoid(curvature, step)
-    curve_x = _cumulative_trapezoid(np.cos(tangent_angle), step)
-    curve_z = _cumulative_trapezoid(np.sin(tangent_angle), step)
-
-    # Linear interpolation of every frame's curve at the points' arc lengths; the weights are
-    # shared by all frames because the arc-length grid is.
-    position = u * (s.size - 1)
-    left = np.minimum(position.astype(np.int64), s.size - 2)
-    fraction = position - left
+    curve = _bend_sheet(curvature, step, u)
     shapes = np.empty((n_frames, n_points, 3))
-    for axis, curve in ((0, curve_x), (2, curve_z)):
-        shapes[:, :, axis] = curve[:, left] * (1.0 - fraction) + curve[:, left + 1] * fraction
+    shapes[:, :, 0] = curve[..., 0]
+    shapes[:, :, 2] = curve[..., 1]
     shapes[:, :, 1] = v * width
 
     camera = _camera_rotations(n_frames, _SHEET_CAMERA_RANGE_DEG, "high", camera_rng)
@@ -580,6 +623,243 @@ def cloth_sequence(n_frames: int = 60, n_points: int = 10_000, seed: int = 0) ->
     return _finish("cloth", shapes, camera, translation_rng, length, faces, colors)
 
 
+# --- hard sequences: large deformations under two camera motions ---------------------------
+
+CameraMotion = Literal["osc", "turn"]
+CAMERA_MOTIONS: tuple[str, ...] = ("osc", "turn")
+
+# Oscillating camera: yaw +-40 degrees with a period of 30 frames, pitch +-12 degrees with a
+# period of 51 frames (so the motion is not about one axis), random phases.
+_OSC_YAW_DEG, _OSC_PERIOD_FRAMES = 40.0, 30.0
+_OSC_PITCH_DEG, _OSC_PITCH_PERIOD_FRAMES = 12.0, 51.0
+# Turntable: the sheet spins about its own normal by 3 degrees per frame (random start and
+# sense) and is seen 45 degrees off its normal, the tilt wobbling by +-5 degrees over the
+# sequence; a sheet on a turntable filmed from above at an angle.
+_TURN_RATE_DEG, _TURN_TILT_DEG, _TURN_WOBBLE_DEG = 3.0, 45.0, 5.0
+
+
+def _hard_camera(n_frames: int, motion: CameraMotion, rng: np.random.Generator) -> np.ndarray:
+    """Camera path of the hard sequences, full rotations (F, 3, 3); see the constants above.
+
+    ``"osc"``: ``R_f = Rx(pitch_f) Ry(yaw_f)``; ``"turn"``: ``R_f = Rx(tilt_f) Rz(spin_f)``
+    (z is the sheets' rest normal, towards the camera at zero rotation).
+    """
+    if motion not in CAMERA_MOTIONS:
+        raise ValueError(f"camera must be one of {CAMERA_MOTIONS}, got {motion!r}")
+    frames = np.arange(n_frames, dtype=np.float64)
+    phases = rng.uniform(0.0, 2.0 * np.pi, size=2)
+    if motion == "osc":
+        yaw = _OSC_YAW_DEG * np.sin(2.0 * np.pi * frames / _OSC_PERIOD_FRAMES + phases[0])
+        pitch = _OSC_PITCH_DEG * np.sin(2.0 * np.pi * frames / _OSC_PITCH_PERIOD_FRAMES + phases[1])
+        return _axis_rotations(0, np.radians(pitch)) @ _axis_rotations(1, np.radians(yaw))
+    sense = rng.choice([-1.0, 1.0])
+    spin = np.degrees(phases[0]) + sense * _TURN_RATE_DEG * frames
+    tilt = _TURN_TILT_DEG + _TURN_WOBBLE_DEG * np.sin(
+        2.0 * np.pi * frames / max(n_frames - 1, 1) + phases[1]
+    )
+    return _axis_rotations(0, np.radians(tilt)) @ _axis_rotations(2, np.radians(spin))
+
+
+def flag_sequence(
+    n_frames: int = 60,
+    n_points: int = 10_000,
+    camera: CameraMotion = "osc",
+    seed: int = 0,
+) -> Sequence:
+    """A flag (1.4 x 1) pinned along its left edge, with two travelling waves shorter than it.
+
+    Two sinusoidal waves travel away from the pole (directions within +-0.5 rad of the long
+    side), with wavelengths of 0.5-0.85 of the flag's length (0.7-1.19), each moving 1.5-3
+    wavelengths over the sequence. Each has an amplitude of 10-12 % of the length at the
+    free edge; the amplitude grows from zero at the pinned edge as ``1 - (1 - u)^2`` (u: 0
+    at the pole, 1 at the free edge). A quarter of each amplitude is in-plane, along the
+    wave and a quarter period out of step, so the cloth bunches where it folds. The flag is
+    not inextensible: where the two waves add up, grid edges stretch by up to 2-3 times.
+
+    Parameters
+    ----------
+    n_frames : int, default 60
+        Number of frames F (>= 2).
+    n_points : int, default 10000
+        Number of points P (>= 4), the first P of a grid over the flag.
+    camera : {"osc", "turn"}, default "osc"
+        Oscillating camera or slow turntable (see :func:`make_sequence`).
+    seed : int, default 0
+        Seed of the wave directions, wavelengths, phases, the camera phase and the image
+        translations.
+
+    Returns
+    -------
+    sequence : Sequence
+    """
+    _check_sizes(n_frames, n_points)
+    deformation_rng, camera_rng, translation_rng = _streams(seed)
+    length, height = 1.4, 1.0
+    u, v, faces = _parameter_grid(n_points, aspect=length / height)
+    x, y = u * length, v * height
+
+    n_waves = 2
+    directions = deformation_rng.uniform(-0.5, 0.5, size=n_waves)
+    wavelengths = deformation_rng.uniform(0.5, 0.85, size=n_waves) * length
+    amplitudes = deformation_rng.uniform(0.10, 0.12, size=n_waves) * length
+    travel = deformation_rng.uniform(1.5, 3.0, size=n_waves)  # wavelengths per sequence
+    phases = deformation_rng.uniform(0.0, 2.0 * np.pi, size=n_waves)
+
+    times = np.linspace(0.0, 1.0, n_frames)[:, None]
+    envelope = 1.0 - (1.0 - u) ** 2  # zero on the pinned edge u = 0
+    shapes = np.zeros((n_frames, n_points, 3))
+    shapes[:, :, 0] = x
+    shapes[:, :, 1] = y
+    for k in range(n_waves):
+        direction = np.array([np.cos(directions[k]), np.sin(directions[k])])
+        along = x * direction[0] + y * direction[1]
+        phase = 2.0 * np.pi * (along / wavelengths[k] - travel[k] * times) + phases[k]
+        shapes[:, :, 2] += amplitudes[k] * envelope * np.sin(phase)
+        in_plane = -0.25 * amplitudes[k] * envelope * np.cos(phase)
+        shapes[:, :, 0] += in_plane * direction[0]
+        shapes[:, :, 1] += in_plane * direction[1]
+
+    rotations = _hard_camera(n_frames, camera, camera_rng)
+    colors = _ramp_colors(x - 0.3 * y, low=(30, 60, 170), high=(240, 240, 240))
+    return _finish(f"flag-{camera}", shapes, rotations, translation_rng, length, faces, colors)
+
+
+def roll_sequence(
+    n_frames: int = 60,
+    n_points: int = 10_000,
+    camera: CameraMotion = "osc",
+    seed: int = 0,
+) -> Sequence:
+    """A sheet (2 x 1.43) that rolls up into a spiral of 1.2-1.5 turns, isometrically.
+
+    Built like :func:`paper_sequence` (a developable surface integrated from a curvature
+    along its long side, so it never stretches), but the roll goes further: its total turn
+    grows smoothly from 0 to 430-540 degrees while its start moves from 90 % to 25-35 % of
+    the length. Inside the roll the curvature grows linearly towards the free end (to 2.5
+    times its value at the start of the roll), so the sheet winds into a spiral instead of
+    overlapping itself on one circle. The seed also chooses which end rolls, and whether it
+    rolls towards or away from the camera's rest position.
+
+    Parameters
+    ----------
+    n_frames : int, default 60
+        Number of frames F (>= 2).
+    n_points : int, default 10000
+        Number of points P (>= 4), the first P of a grid over the sheet.
+    camera : {"osc", "turn"}, default "osc"
+        Oscillating camera or slow turntable (see :func:`make_sequence`).
+    seed : int, default 0
+        Seed of the roll's turn, extent, end and sense, the camera phase and the image
+        translations.
+
+    Returns
+    -------
+    sequence : Sequence
+    """
+    _check_sizes(n_frames, n_points)
+    deformation_rng, camera_rng, translation_rng = _streams(seed)
+    length, width = 2.0, 2.0 / 1.4
+    u, v, faces = _parameter_grid(n_points, aspect=1.4)
+
+    final_turn = np.radians(deformation_rng.uniform(430.0, 540.0))
+    final_start = deformation_rng.uniform(0.25, 0.35)
+    sense = deformation_rng.choice([-1.0, 1.0])
+    flip = deformation_rng.random() < 0.5
+
+    times = np.linspace(0.0, 1.0, n_frames)[:, None]
+    progress = times**2 * (3.0 - 2.0 * times)
+    s = np.linspace(0.0, length, 2049)
+    roll_start = length * (0.9 - (0.9 - final_start) * progress)
+    inside = (s - roll_start) / (length - roll_start)
+    profile = _sigmoid((s - roll_start) / (0.03 * length)) * (1.0 + 1.5 * np.clip(inside, 0, 1))
+    profile /= _cumulative_trapezoid(profile, s[1] - s[0])[:, -1:]
+    curvature = sense * final_turn * progress * profile
+
+    arc = 1.0 - u if flip else u
+    curve = _bend_sheet(curvature, s[1] - s[0], arc)
+    shapes = np.empty((n_frames, n_points, 3))
+    shapes[:, :, 0] = curve[..., 0]
+    shapes[:, :, 2] = curve[..., 1]
+    shapes[:, :, 1] = v * width
+
+    rotations = _hard_camera(n_frames, camera, camera_rng)
+    colors = _ramp_colors(u, low=(240, 235, 215), high=(200, 90, 60))
+    return _finish(f"roll-{camera}", shapes, rotations, translation_rng, length, faces, colors)
+
+
+def bumps_sequence(
+    n_frames: int = 60,
+    n_points: int = 10_000,
+    camera: CameraMotion = "osc",
+    seed: int = 0,
+) -> Sequence:
+    """A sheet (1.4 x 1.4) with a 4 x 4 grid of Gaussian bumps that grow and shrink out of phase.
+
+    Bump k sits near the centre of its grid cell (jittered by up to 15 % of the spacing
+    0.35), has a width (standard deviation) of 0.38-0.46 of the spacing and a height
+    ``h_k(t) = A_k sin(2 pi c_k t + phi_k)`` with ``A_k`` 0.24-0.30 (17-21 % of the side),
+    ``c_k`` 1-2 cycles per sequence and phases that alternate by half a cycle between
+    neighbouring cells (a checkerboard) plus a random offset of up to a quarter cycle: while
+    one bump rises, its neighbours sink into dents.
+
+    Parameters
+    ----------
+    n_frames : int, default 60
+        Number of frames F (>= 2).
+    n_points : int, default 10000
+        Number of points P (>= 4), the first P of a grid over the sheet.
+    camera : {"osc", "turn"}, default "osc"
+        Oscillating camera or slow turntable (see :func:`make_sequence`).
+    seed : int, default 0
+        Seed of the bump positions, widths, heights, frequencies, phases, the camera phase
+        and the image translations.
+
+    Returns
+    -------
+    sequence : Sequence
+    """
+    _check_sizes(n_frames, n_points)
+    deformation_rng, camera_rng, translation_rng = _streams(seed)
+    side, n_cells = 1.4, 4
+    spacing = side / n_cells
+    u, v, faces = _parameter_grid(n_points, aspect=1.0)
+    x, y = u * side, v * side
+
+    rows, cols = np.divmod(np.arange(n_cells**2), n_cells)
+    centres_x = (cols + 0.5 + deformation_rng.uniform(-0.15, 0.15, n_cells**2)) * spacing
+    centres_y = (rows + 0.5 + deformation_rng.uniform(-0.15, 0.15, n_cells**2)) * spacing
+    widths = deformation_rng.uniform(0.38, 0.46, n_cells**2) * spacing
+    heights = deformation_rng.uniform(0.24, 0.30, n_cells**2)
+    cycles = deformation_rng.uniform(1.0, 2.0, n_cells**2)
+    phases = np.pi * ((rows + cols) % 2) + deformation_rng.uniform(
+        -0.5 * np.pi, 0.5 * np.pi, n_cells**2
+    )
+
+    times = np.linspace(0.0, 1.0, n_frames)[:, None]
+    amplitude = heights * np.sin(2.0 * np.pi * cycles * times + phases)  # (F, K)
+    bump_fields = np.stack(
+        [
+            _gaussian(x, y, cx, cy, w, w)
+            for cx, cy, w in zip(centres_x, centres_y, widths, strict=True)
+        ]
+    )  # (K, P)
+    shapes = np.zeros((n_frames, n_points, 3))
+    shapes[:, :, 0] = x
+    shapes[:, :, 1] = y
+    shapes[:, :, 2] = amplitude @ bump_fields
+
+    rotations = _hard_camera(n_frames, camera, camera_rng)
+    colors = _ramp_colors(bump_fields.sum(axis=0), low=(60, 120, 60), high=(230, 220, 140))
+    return _finish(f"bumps-{camera}", shapes, rotations, translation_rng, side, faces, colors)
+
+
+_HARD_GENERATORS = {"flag": flag_sequence, "roll": roll_sequence, "bumps": bumps_sequence}
+
+#: The hard sequences, ``<deformation>-<camera>``: every deformation under both cameras.
+HARD_SEQUENCE_NAMES: tuple[str, ...] = tuple(
+    f"{deformation}-{camera}" for deformation in _HARD_GENERATORS for camera in CAMERA_MOTIONS
+)
+
 # --- registry and noise --------------------------------------------------------------------
 
 
@@ -633,7 +913,9 @@ def make_sequence(
         One of :data:`SEQUENCE_NAMES`: ``face1`` (10 frames, +-30 degrees), ``face2``
         (10 frames, +-90 degrees), ``face3`` (99 frames, high rotation frequency), ``face4``
         (99 frames, low rotation frequency), all 28,880 points; ``paper`` and ``cloth``
-        (60 frames, 10,000 points).
+        (60 frames, 10,000 points); or one of :data:`HARD_SEQUENCE_NAMES`: ``flag-osc``,
+        ``flag-turn``, ``roll-osc``, ``roll-turn``, ``bumps-osc``, ``bumps-turn`` (60
+        frames, 10,000 points; the deformation, then the camera motion).
     n_frames : int, optional
         Overrides the benchmark's number of frames.
     n_points : int, optional
@@ -658,8 +940,18 @@ def make_sequence(
         generator = paper_sequence if name == "paper" else cloth_sequence
         sizes = {"n_frames": n_frames, "n_points": n_points}
         sequence = generator(**{k: v for k, v in sizes.items() if v is not None}, seed=seed)
+    elif name in HARD_SEQUENCE_NAMES:
+        deformation, camera = name.split("-")
+        sizes = {"n_frames": n_frames, "n_points": n_points}
+        sequence = _HARD_GENERATORS[deformation](
+            **{k: v for k, v in sizes.items() if v is not None},
+            camera=camera,  # type: ignore[arg-type]
+            seed=seed,
+        )
     else:
-        raise ValueError(f"name must be one of {SEQUENCE_NAMES}, got {name!r}")
+        raise ValueError(
+            f"name must be one of {SEQUENCE_NAMES + HARD_SEQUENCE_NAMES}, got {name!r}"
+        )
     if noise == 0:
         return sequence
     noisy = add_noise(sequence.W, noise, seed=seed)

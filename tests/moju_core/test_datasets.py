@@ -8,17 +8,23 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from moju_core.datasets import (
+    HARD_SEQUENCE_NAMES,
     SEQUENCE_NAMES,
     Sequence,
+    _parameter_grid,
     add_noise,
+    bumps_sequence,
     cloth_sequence,
     face_sequence,
+    flag_sequence,
     make_sequence,
     paper_sequence,
+    roll_sequence,
 )
 from moju_core.metrics import e3d, rigid_approximation
 
 SMALL = 600  # points per sequence where the full density is not what is being tested
+ALL_NAMES = SEQUENCE_NAMES + HARD_SEQUENCE_NAMES
 
 
 def yaw_pitch_deg(rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -40,7 +46,7 @@ def turning_points(values: np.ndarray) -> int:
 # --- structure -----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", SEQUENCE_NAMES)
+@pytest.mark.parametrize("name", ALL_NAMES)
 def test_arrays_have_documented_shapes_and_dtypes(name: str) -> None:
     sequence = make_sequence(name, n_points=SMALL)
     F, P = sequence.n_frames, sequence.n_points
@@ -66,6 +72,7 @@ def test_arrays_have_documented_shapes_and_dtypes(name: str) -> None:
         ("face4", 99, 28_880),
         ("paper", 60, 10_000),
         ("cloth", 60, 10_000),
+        *((name, 60, 10_000) for name in HARD_SEQUENCE_NAMES),
     ],
 )
 def test_benchmark_default_sizes(name: str, n_frames: int, n_points: int) -> None:
@@ -80,7 +87,10 @@ def test_sizes_can_be_overridden() -> None:
     assert (sequence.n_frames, sequence.n_points) == (5, 10_000)
 
 
-@pytest.mark.parametrize("generator", [face_sequence, paper_sequence, cloth_sequence])
+@pytest.mark.parametrize(
+    "generator",
+    [face_sequence, paper_sequence, cloth_sequence, flag_sequence, roll_sequence, bumps_sequence],
+)
 @pytest.mark.parametrize("n_points", [4, 5, 37, 101])
 def test_small_point_counts_are_honoured_with_a_valid_mesh(generator, n_points: int) -> None:
     sequence = generator(n_frames=4, n_points=n_points)
@@ -109,6 +119,10 @@ def test_invalid_requests_are_rejected() -> None:
         face_sequence(n_points=50, rotation_frequency="medium")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="face1"):
         make_sequence("t-shirt")
+    with pytest.raises(ValueError, match="flag-osc"):
+        make_sequence("flag")
+    with pytest.raises(ValueError, match="camera"):
+        flag_sequence(n_points=50, camera="handheld")  # type: ignore[arg-type]
     sequence = make_sequence("face1", n_points=20)
     with pytest.raises(ValueError, match=r"W must have shape \(20, 20\)"):
         Sequence(
@@ -125,7 +139,7 @@ def test_invalid_requests_are_rejected() -> None:
 # --- determinism ---------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", SEQUENCE_NAMES)
+@pytest.mark.parametrize("name", ALL_NAMES)
 def test_same_seed_same_arrays_other_seed_other_arrays(name: str) -> None:
     first = make_sequence(name, n_points=SMALL, seed=3)
     again = make_sequence(name, n_points=SMALL, seed=3)
@@ -139,7 +153,7 @@ def test_same_seed_same_arrays_other_seed_other_arrays(name: str) -> None:
 # --- projection model and camera ----------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", SEQUENCE_NAMES)
+@pytest.mark.parametrize("name", ALL_NAMES)
 def test_tracks_are_orthographic_projections_plus_translation(name: str) -> None:
     sequence = make_sequence(name, n_points=SMALL)
     F = sequence.n_frames
@@ -153,7 +167,7 @@ def test_tracks_are_orthographic_projections_plus_translation(name: str) -> None
     assert_allclose(sequence.W.mean(axis=1), sequence.translations.ravel(), atol=1e-12)
 
 
-@pytest.mark.parametrize("name", SEQUENCE_NAMES)
+@pytest.mark.parametrize("name", ALL_NAMES)
 def test_rotation_rows_are_orthonormal(name: str) -> None:
     rotations = make_sequence(name, n_points=SMALL).rotations
     gram = rotations @ rotations.transpose(0, 2, 1)
@@ -235,6 +249,116 @@ def test_paper_bends_without_stretching() -> None:
     # sheet's 2-unit length, against a flat first frame.
     assert np.ptp(sequence.shapes[0, :, 2]) < 1e-9
     assert np.ptp(sequence.shapes[-1, :, 2]) > 0.4
+
+
+# --- hard sequences ------------------------------------------------------------------------
+
+HARD_POINTS = 2_000
+
+
+def full_rotations(rotations: np.ndarray) -> np.ndarray:
+    """(F, 2, 3) camera rows completed to (F, 3, 3) rotations."""
+    third = np.cross(rotations[:, 0], rotations[:, 1])
+    return np.concatenate([rotations, third[:, None, :]], axis=1)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("name", HARD_SEQUENCE_NAMES)
+def test_hard_sequences_are_far_from_any_rigid_shape(name: str, seed: int) -> None:
+    sequence = make_sequence(name, n_points=HARD_POINTS, seed=seed)
+    error = e3d(rigid_approximation(sequence.shapes), sequence.shapes, "procrustes")
+    assert error >= 0.12
+
+
+def test_hard_seeds_share_the_deformation_across_cameras_not_across_seeds() -> None:
+    oscillating = make_sequence("roll-osc", n_points=SMALL, seed=1)
+    turntable = make_sequence("roll-turn", n_points=SMALL, seed=1)
+    assert_array_equal(oscillating.shapes, turntable.shapes)
+    assert np.max(np.abs(oscillating.rotations - turntable.rotations)) > 0.1
+    other_seed = make_sequence("roll-osc", n_points=SMALL, seed=2)
+    assert np.max(np.abs(other_seed.rotations - oscillating.rotations)) > 0.1
+
+
+@pytest.mark.parametrize("deformation", ["flag", "roll", "bumps"])
+def test_oscillating_camera_swings_30_to_45_degrees_with_a_20_to_40_frame_period(
+    deformation: str,
+) -> None:
+    for seed in range(3):
+        rotations = make_sequence(f"{deformation}-osc", n_points=SMALL, seed=seed).rotations
+        yaw, pitch = yaw_pitch_deg(rotations)
+        assert 30.0 <= np.max(np.abs(yaw)) <= 45.0
+        # 60 frames at a period of 20-40 frames: 1.5 to 3 cycles, 3 to 6 extrema.
+        assert 3 <= turning_points(yaw) <= 6
+        assert np.ptp(pitch) > 10.0  # not about a single axis
+
+
+@pytest.mark.parametrize("deformation", ["flag", "roll", "bumps"])
+def test_turntable_turns_2_to_5_degrees_per_frame(deformation: str) -> None:
+    rotations = full_rotations(make_sequence(f"{deformation}-turn", n_points=SMALL).rotations)
+    relative = rotations[1:] @ rotations[:-1].transpose(0, 2, 1)
+    cosines = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    steps = np.degrees(np.arccos(cosines))
+    assert np.all((steps >= 2.0) & (steps <= 5.0))
+    # Over the sequence the view turns far: the first and last views differ by > 90 degrees
+    # about the sheet's normal.
+    view_first, view_last = rotations[0, 0], rotations[-1, 0]
+    assert np.degrees(np.arccos(np.clip(view_first @ view_last, -1, 1))) > 90.0
+
+
+def test_flag_is_pinned_along_one_edge_with_waves_shorter_than_it() -> None:
+    sequence = make_sequence("flag-osc", n_points=HARD_POINTS, seed=3)
+    u, v, _ = _parameter_grid(HARD_POINTS, aspect=1.4)
+    moved = sequence.shapes - sequence.shapes[:1]
+    # Shapes are centred per frame, so a pinned point moves only with the centroid: the whole
+    # pinned edge shifts by one common vector, while the free edge spreads out.
+    for edge, (low, high) in ((u == 0.0, (0.0, 1e-12)), (u == 1.0, (0.2, np.inf))):
+        spread = np.abs(moved[:, edge] - moved[:, edge].mean(axis=1, keepdims=True)).max()
+        assert low <= spread <= high
+    # Along the middle row the height has at least two extrema in every frame: at least one
+    # wavelength fits into the flag.
+    middle = np.isclose(v, np.unique(v)[np.unique(v).size // 2])
+    order = np.argsort(u[middle])
+    for shape in sequence.shapes:
+        assert turning_points(shape[middle][order, 2]) >= 2
+
+
+def test_roll_turns_more_than_once_without_stretching() -> None:
+    sequence = make_sequence("roll-osc", n_points=HARD_POINTS, seed=3)
+    u, v, faces = _parameter_grid(HARD_POINTS, aspect=1.4)
+    rest = np.stack([2.0 * u, 2.0 / 1.4 * v, np.zeros_like(u)], axis=1)
+    rest_lengths = np.linalg.norm(rest[faces[:, 0]] - rest[faces[:, 1]], axis=1)
+    lengths = np.linalg.norm(
+        sequence.shapes[:, faces[:, 0]] - sequence.shapes[:, faces[:, 1]], axis=-1
+    )
+    # Chords on the tightest turns (radius ~0.1, edges ~0.04) are < 1 % shorter than arcs.
+    assert np.max(np.abs(lengths / rest_lengths - 1.0)) < 1e-2
+    assert np.ptp(sequence.shapes[0, :, 2]) < 1e-9  # starts flat
+    # The last frame's cross-section turns by more than a full circle.
+    edge = v == 0.0
+    section = sequence.shapes[-1, edge][np.argsort(u[edge])]
+    steps = np.diff(section, axis=0)
+    turn = np.ptp(np.unwrap(np.arctan2(steps[:, 2], steps[:, 0])))
+    assert np.degrees(turn) > 400.0
+
+
+def test_bumps_rise_while_their_neighbours_sink() -> None:
+    sequence = make_sequence("bumps-osc", n_points=HARD_POINTS, seed=3)
+    heights = sequence.shapes[:, :, 2]
+    # In every frame some bump stands up and another is a dent (out of phase), and the
+    # height of every point changes over the sequence.
+    assert np.all(heights.max(axis=1) > 0.1)
+    assert np.all(heights.min(axis=1) < -0.1)
+    first_half = heights[: sequence.n_frames // 2]
+    assert np.ptp(first_half, axis=0).max() > 0.3
+
+
+def test_hard_noise_variant_keeps_the_ground_truth() -> None:
+    clean = make_sequence("bumps-turn", n_points=SMALL, seed=1)
+    noisy = make_sequence("bumps-turn", n_points=SMALL, seed=1, noise=0.03)
+    assert noisy.noise == 0.03
+    assert_array_equal(noisy.shapes, clean.shapes)
+    residual = noisy.W - clean.W
+    assert abs(np.std(residual) / (0.03 * np.max(np.abs(clean.W))) - 1.0) < 0.05
 
 
 # --- noise ---------------------------------------------------------------------------------
