@@ -1,7 +1,8 @@
 """Property-based tests of the file readers against hostile bytes (the service's uploads).
 
 Whatever the bytes, :func:`moju_core.io.read_measurements` either returns measurements that
-satisfy the contract (finite float64 W of shape 2F x P, F >= 2, P >= 3, within the limits)
+satisfy the contract (float64 W of shape 2F x P, F >= 2, P >= 3, within the limits, NaN
+only at the unobserved entries of its visibility)
 or raises :class:`~moju_core.errors.MeasurementError`: never another exception, which the
 API would turn into a 500.
 """
@@ -43,7 +44,15 @@ def _read(data: bytes, file_format: str | None, **limits: int) -> Measurements |
 def _check_contract(m: Measurements, max_frames: int | None = None, max_points=None) -> None:
     assert m.W.dtype == np.float64 and m.W.ndim == 2 and m.W.shape[0] % 2 == 0
     assert m.n_frames >= 2 and m.n_points >= 3
-    assert np.isfinite(m.W).all()
+    assert not np.isinf(m.W).any()
+    # NaN (x and y together) exactly at the unobserved entries; a mask only when one is.
+    observed = np.isfinite(m.W).reshape(m.n_frames, 2, m.n_points).all(axis=1)
+    assert_array_equal(np.isnan(m.W), np.repeat(~observed, 2, axis=0))
+    if m.visibility is None:
+        assert observed.all()
+    else:
+        assert_array_equal(m.visibility, observed) and not observed.all()
+        assert (observed.sum(axis=0) >= 2).all() and (observed.sum(axis=1) >= 3).all()
     if max_frames is not None:
         assert m.n_frames <= max_frames
     if max_points is not None:
