@@ -20,8 +20,9 @@ points (:func:`moju_core.validation.check_observations`).
 
 Result files hold ``shapes`` (F x P x 3, every point in every frame, the unobserved ones
 filled in by the solver), ``visibility`` (F x P bool, the observations used), ``rotations``
-(F x 2 x 3), ``labels`` (P,), the per-iteration history and the metadata; every result is written to a temporary file and renamed
-into place, so a crash never leaves a half-written file under the final name.
+(F x 2 x 3), ``labels`` (P,), the per-iteration history and the metadata; every result is
+written to a temporary file and renamed into place, so a crash never leaves a half-written file
+under the final name.
 """
 
 from __future__ import annotations
