@@ -56,7 +56,6 @@ from moju_core.validation import (
     check_observations,
     check_rotations,
     tracks_to_W,
-    with_missing,
 )
 
 __all__ = [
@@ -137,8 +136,9 @@ class Measurements:
         W, visibility = check_observations(self.W, self.visibility)
         if visibility.all():
             self.W, self.visibility = W, None
-        else:
-            self.W, self.visibility = with_missing(W, visibility), visibility
+        else:  # W is a new array here (zeros filled in): mark the unobserved entries again
+            W[np.repeat(~visibility, 2, axis=0)] = np.nan
+            self.W, self.visibility = W, visibility
         n_frames, n_points = self.n_frames, self.n_points
         if self.rotations is not None:
             self.rotations = check_rotations(self.rotations, n_frames)
@@ -565,8 +565,8 @@ def _read_csv(
     origin = "largest frame and point indices of its rows"
     _refuse_oversized(source_name, origin, n_frames, n_points, max_frames, max_points)
     linear = frames * n_points + points
-    # Checked on the rows, before W (F x P) is allocated: a few stray indices cannot make a
-    # small file claim a huge W.
+    # Checked on the rows, before W (F x P) is allocated: a stray large index (a frame or point
+    # with too few rows of its own) is refused without building the W it would imply.
     if np.unique(linear).size != n_rows:
         raise MeasurementError(_repeated_pairs(linear, n_frames, n_points, source_name))
     if n_frames >= 2 and n_points >= 3:  # else Measurements names the size problem
