@@ -66,6 +66,10 @@ SCORE_LABELS = {
     "e3d_procrustes": "e3D, per-frame Procrustes alignment",
     "e3d_global": "e3D, one global alignment",
     "e3d_sign": "e3D, depth sign only",
+    "observed_fraction": "observed (frame, point) entries",
+    "e3d_occluded_procrustes": "e3D of the occluded entries, Procrustes",
+    "e3d_occluded_global": "e3D of the occluded entries, global",
+    "e3d_occluded_sign": "e3D of the occluded entries, depth sign",
     "rotation_error_deg": "rotation error (degrees)",
 }
 
@@ -222,9 +226,11 @@ def _solve(
     *,
     quiet: bool,
     threads: int,
+    visibility: np.ndarray | None = None,
 ) -> Result:
     """Run :func:`moju_core.reconstruct` with a progress bar on ``threads`` BLAS threads.
 
+    ``visibility`` (F, P) bool marks the observed entries of W (None: all observed).
     Input errors become CLI errors; solver warnings are printed as ``warning: ...`` lines.
     """
     # Imported here: the solver pulls in scikit-learn, which ``moju --help`` should not wait for.
@@ -234,7 +240,9 @@ def _solve(
     try:
         with threadpool_limits(limits=threads), warnings.catch_warnings():
             warnings.showwarning = bar.warn
-            return reconstruct(W, params, rotations=rotations, callback=bar)
+            # Complete data go through the call as before; a mask only when something is missing.
+            masked = {} if visibility is None else {"visibility": visibility}
+            return reconstruct(W, params, rotations=rotations, callback=bar, **masked)
     except MeasurementError as exc:
         raise click.ClickException(str(exc)) from exc
     finally:
@@ -354,7 +362,11 @@ def _format_scores(scores: dict[str, float], *, rotations_estimated: bool) -> li
     lines = []
     for key, label in SCORE_LABELS.items():
         if key in scores:
-            value = f"{scores[key]:.2f}" if key == "rotation_error_deg" else f"{scores[key]:.4f}"
+            value = f"{scores[key]:.4f}"
+            if key == "rotation_error_deg":
+                value = f"{scores[key]:.2f}"
+            elif key == "observed_fraction":
+                value = f"{100 * scores[key]:.1f} %"
             lines.append(f"{label + ':':<{width + 1}} {value}")
     if rotations_estimated:
         # Estimated rotations fix the shapes only up to one global rotation, which the sign
@@ -366,13 +378,25 @@ def _format_scores(scores: dict[str, float], *, rotations_estimated: bool) -> li
     return lines
 
 
-def _summary(result: Result, n_frames: int, n_points: int) -> str:
+def _summary(result: Result, n_frames: int, n_points: int, observed: float = 1.0) -> str:
     reason = STOP_REASONS.get(result.stop_reason, result.stop_reason)
+    seen = f" ({100 * observed:.1f} % observed)" if observed < 1.0 else ""
     return (
-        f"{n_frames} frames x {n_points} points: {result.n_iter} "
+        f"{n_frames} frames x {n_points} points{seen}: {result.n_iter} "
         f"iteration{'' if result.n_iter == 1 else 's'}, {reason}, "
         f"{result.timings['total']:.1f} s"
     )
+
+
+def _occlusion_mask(
+    used: np.ndarray | None, of_input: np.ndarray | None
+) -> np.ndarray | None:
+    """The visibility to score the occluded entries by: the one the solver used (the result's)
+    when it misses something, else the input's; None when neither does."""
+    for mask in (used, of_input):
+        if mask is not None and not np.all(mask):
+            return np.asarray(mask, dtype=bool)
+    return None
 
 
 # --------------------------------------------------------------------------------------------
@@ -434,13 +458,18 @@ def reconstruct(
             measurements.rotations if known else None,
             quiet=quiet,
             threads=threads,
+            visibility=measurements.visibility,
         )
         metadata = {"input": Path(input_file).name, "created_by": "moju reconstruct"}
         outputs.write_result(output, result, metadata)
         if ply_dir is not None:
             outputs.write_ply(ply_dir, result.shapes, measurements.faces, measurements.colors)
     # Reported only once everything is written: an interrupted run names no files.
-    click.echo(_summary(result, measurements.n_frames, measurements.n_points))
+    click.echo(
+        _summary(
+            result, measurements.n_frames, measurements.n_points, measurements.observed_fraction
+        )
+    )
     click.echo(f"result: {output}")
     if ply_dir is not None:
         click.echo(f"PLY: {measurements.n_frames} files in {ply_dir}")
@@ -452,6 +481,7 @@ def reconstruct(
             measurements.ground_truth,
             result.rotations if with_rotations else None,
             measurements.rotations if with_rotations else None,
+            visibility=_occlusion_mask(result.visibility, measurements.visibility),
         )
         for line in _format_scores(scores, rotations_estimated=not known):
             click.echo(line)
@@ -473,7 +503,9 @@ def evaluate(result_file: str, truth_file: str, as_json: bool) -> None:
 
     Prints the e3D (paper Eq. 17) after per-frame Procrustes alignment, after one global
     alignment, and after fixing only the depth sign, plus the mean camera rotation error in
-    degrees when INPUT holds R.
+    degrees when INPUT holds R. When points were missing (the visibility of RESULT, else that
+    of INPUT, has unobserved entries), also the fraction observed and the e3D over the occluded
+    entries alone, each frame relative to its occluded ground-truth points.
     """
     try:
         result = read_result(result_file)
@@ -495,6 +527,7 @@ def evaluate(result_file: str, truth_file: str, as_json: bool) -> None:
             measurements.ground_truth,
             result.rotations if with_rotations else None,
             measurements.rotations,
+            visibility=_occlusion_mask(result.visibility, measurements.visibility),
         )
     except ValueError as exc:  # shapes of the two files disagree
         raise click.ClickException(

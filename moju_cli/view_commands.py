@@ -159,7 +159,8 @@ def view(
 
     The page shows the shapes as an interactive 3D point cloud (a surface with --input when
     the input has triangles), a frame slider and play button, colours by local group or by
-    depth, and the convergence curve. It needs no server and no internet access.
+    depth, and the convergence curve. Points the solver filled in (not observed in a frame)
+    are drawn dimmed, or hidden on request. It needs no server and no internet access.
     """
     result_path = Path(result_file)
     output = output or result_path.with_suffix(".html")
@@ -171,9 +172,11 @@ def view(
     except ValueError as exc:
         raise click.ClickException(str(exc)) from exc
     summary = document["summary"]
+    observed = summary["observed_fraction"]
+    missing = f", {100 * observed:.1f} % observed" if observed < 1 else ""
     subtitle = (
-        f"{result_path.name}: {summary['frames']} frames x {summary['points']} points, "
-        f"{summary['n_iter']} iterations ({summary['stop_reason']}). Written by moju "
+        f"{result_path.name}: {summary['frames']} frames x {summary['points']} points"
+        f"{missing}, {summary['n_iter']} iterations ({summary['stop_reason']}). Written by moju "
         f"{__version__}."
     )
     page = standalone_html(document, title=f"MoJu result: {result_path.name}", subtitle=subtitle)

@@ -7,15 +7,22 @@ caller's limits, and turn every failure of the underlying libraries into a
 
 Dataset names of an input file (npz members or HDF5 root datasets):
 
-* ``W`` (2F x P): rows 2f, 2f+1 are x, y of frame f; or ``tracks`` (F x P x 2);
+* ``W`` (2F x P): rows 2f, 2f+1 are x, y of frame f; or ``tracks`` (F x P x 2). A point that
+  is not observed in a frame is NaN there (x and y both);
+* optional ``visibility`` (F x P bool, True = observed), which must agree with the NaN of W;
 * optional ``R`` (F x 2 x 3) known rotations, ``gt`` (F x P x 3) ground truth,
   ``faces`` (M x 3) triangle indices, ``colors`` (P x 3, or P x 4 with alpha) in 0..255.
 
-Other datasets are ignored. A CSV input is in long format with the header ``frame,point,x,y``.
+Other datasets are ignored. A CSV input is in long format with the header ``frame,point,x,y``,
+one row per observed (frame, point) pair: a missing row is a point not observed in that frame.
+Every point must be observed in at least 2 frames and every frame must observe at least 3
+points (:func:`moju_core.validation.check_observations`).
 
-Result files hold ``shapes`` (F x P x 3), ``rotations`` (F x 2 x 3), ``labels`` (P,), the
-per-iteration history and the metadata; every result is written to a temporary file and renamed
-into place, so a crash never leaves a half-written file under the final name.
+Result files hold ``shapes`` (F x P x 3, every point in every frame, the unobserved ones
+filled in by the solver), ``visibility`` (F x P bool, the observations used), ``rotations``
+(F x 2 x 3), ``labels`` (P,), the per-iteration history and the metadata; every result is
+written to a temporary file and renamed into place, so a crash never leaves a half-written file
+under the final name.
 """
 
 from __future__ import annotations
@@ -45,7 +52,8 @@ from moju_core.validation import (
     check_dtype,
     check_faces,
     check_ground_truth,
-    check_measurements,
+    check_observation_counts,
+    check_observations,
     check_rotations,
     tracks_to_W,
 )
@@ -72,7 +80,7 @@ _ZIP_MAGIC = b"PK\x03\x04"
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 _NPY_MAGIC = b"\x93NUMPY"
 
-_OPTIONAL_NAMES = ("R", "gt", "faces", "colors")
+_OPTIONAL_NAMES = ("visibility", "R", "gt", "faces", "colors")
 _DATASET_NAMES = ("W", "tracks", *_OPTIONAL_NAMES)
 _EXPECTED_MAIN = "W (2F x P: rows 2f, 2f+1 are x, y of frame f) or tracks (F x P x 2)"
 _CSV_COLUMNS = ("frame", "point", "x", "y")
@@ -83,6 +91,8 @@ _MAX_FACES_PER_POINT = 4
 _RESULT_EXTENSIONS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5"}
 _HISTORY_PREFIX = "history_"
 _RESULT_ARRAYS = ("shapes", "rotations", "labels")
+#: Optional in a result file: files written before it existed lack it.
+_RESULT_VISIBILITY = "visibility"
 _RESULT_JSON = ("params", "timings", "metadata")
 
 
@@ -99,7 +109,12 @@ class Measurements:
     Attributes
     ----------
     W : ndarray of shape (2F, P), float64
-        Rows ``2f`` and ``2f+1`` are the x and y image coordinates of frame ``f``.
+        Rows ``2f`` and ``2f+1`` are the x and y image coordinates of frame ``f``; NaN (x and
+        y) where a point is not observed in a frame.
+    visibility : ndarray of shape (F, P), bool, or None
+        True where point ``j`` is observed in frame ``f``; None when every point is observed
+        in every frame. When given on construction it must agree with the NaN of W; when left
+        out it is derived from them.
     rotations : ndarray of shape (F, 2, 3), float64, or None
         Known camera rotations (orthonormal rows).
     ground_truth : ndarray of shape (F, P, 3), float64, or None
@@ -115,9 +130,15 @@ class Measurements:
     ground_truth: np.ndarray | None = None
     faces: np.ndarray | None = None
     colors: np.ndarray | None = None
+    visibility: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        self.W = check_measurements(self.W)
+        W, visibility = check_observations(self.W, self.visibility)
+        if visibility.all():
+            self.W, self.visibility = W, None
+        else:  # W is a new array here (zeros filled in): mark the unobserved entries again
+            W[np.repeat(~visibility, 2, axis=0)] = np.nan
+            self.W, self.visibility = W, visibility
         n_frames, n_points = self.n_frames, self.n_points
         if self.rotations is not None:
             self.rotations = check_rotations(self.rotations, n_frames)
@@ -137,6 +158,11 @@ class Measurements:
     def n_points(self) -> int:
         """Number of points P."""
         return self.W.shape[1]
+
+    @property
+    def observed_fraction(self) -> float:
+        """Fraction of the F x P (frame, point) entries that are observed, in (0, 1]."""
+        return 1.0 if self.visibility is None else float(self.visibility.mean())
 
 
 @dataclass(frozen=True)
@@ -241,6 +267,8 @@ def _largest_allowed(name: str, n_frames: int, n_points: int, max_points: int | 
     """Most elements a well-formed optional dataset can hold for F frames and P points."""
     if name == "R":
         return 6 * n_frames
+    if name == "visibility":
+        return n_frames * n_points
     if name == "gt":
         return 3 * n_frames * n_points
     if name == "colors":
@@ -274,7 +302,9 @@ def _measurements_from_declared(
     for name in _OPTIONAL_NAMES:
         if name not in declared:
             continue
-        check_dtype(name, declared[name].dtype, integer=name in ("faces", "colors"))
+        if not (name == "visibility" and declared[name].dtype.kind == "b"):
+            integer = name in ("visibility", "faces", "colors")
+            check_dtype(name, declared[name].dtype, integer=integer)
         size = int(np.prod(declared[name].shape, dtype=object))
         largest = _largest_allowed(name, n_frames, n_points, max_points)
         if largest >= 0 and size > largest:
@@ -291,6 +321,7 @@ def _measurements_from_declared(
         ground_truth=arrays.get("gt"),
         faces=arrays.get("faces"),
         colors=arrays.get("colors"),
+        visibility=arrays.get("visibility"),
     )
 
 
@@ -457,27 +488,14 @@ def _describe_pairs(linear: np.ndarray, n_points: int, limit: int = 5) -> str:
     return ", ".join(pairs) + (", ..." if linear.size > limit else "")
 
 
-def _pairs_problem(linear: np.ndarray, n_frames: int, n_points: int, source_name: str) -> str:
-    """Say which (frame, point) pairs are missing or repeated in the CSV rows."""
-    # F x P can be far larger than the number of rows (one stray large index), so work on the
-    # sorted distinct pairs instead of counting into an array of size F x P.
+def _repeated_pairs(linear: np.ndarray, n_frames: int, n_points: int, source_name: str) -> str:
+    """Say which (frame, point) pairs occur in more than one CSV row."""
     present, counts = np.unique(linear, return_counts=True)
-    n_pairs = n_frames * n_points
-    problems = []
-    n_missing = n_pairs - present.size
-    if n_missing:
-        bounds = np.concatenate([[-1], present, [n_pairs]])
-        gap_starts = np.flatnonzero(np.diff(bounds) > 1)[:5]
-        examples = np.concatenate(
-            [np.arange(bounds[i] + 1, min(bounds[i + 1], bounds[i] + 6)) for i in gap_starts]
-        )
-        problems.append(f"{n_missing} missing, e.g. {_describe_pairs(examples, n_points)}")
     repeated = present[counts > 1]
-    if repeated.size:
-        problems.append(f"{repeated.size} repeated, e.g. {_describe_pairs(repeated, n_points)}")
     return (
-        f"{source_name} must hold every (frame, point) pair of {n_frames} frames x {n_points} "
-        f"points exactly once ({n_pairs} rows), it has {linear.size} rows: {'; '.join(problems)}"
+        f"{source_name} must hold each (frame, point) pair of {n_frames} frames x {n_points} "
+        f"points at most once; {repeated.size} are repeated, e.g. "
+        f"{_describe_pairs(repeated, n_points)}. Keep one row per observed point and frame"
     )
 
 
@@ -531,13 +549,15 @@ def _read_csv(
     frames, points, x, y = table.T
     n_rows = table.shape[0]
     for column, values in (("frame", frames), ("point", points)):
-        # Indices >= n_rows cannot occur in a complete file and would overflow F * P below.
+        # Every frame and point needs rows of its own (3 per frame, 2 per point), so an index
+        # >= n_rows cannot belong to a usable file; refusing it also bounds F * P below.
         bad = np.flatnonzero((values != np.floor(values)) | (values < 0) | (values >= n_rows))
         if bad.size:
             line = _data_line_numbers(body, bad[:1])[0]
             raise MeasurementError(
                 f"line {line} of {source_name}: {column} is {values[bad[0]]:g}; frames and "
-                f"points must be numbered 0..F-1 and 0..P-1 with F x P = {n_rows} rows"
+                f"points must be numbered 0..F-1 and 0..P-1, each with rows of its own, and "
+                f"the file has {n_rows} rows"
             )
     frames = frames.astype(np.int64)
     points = points.astype(np.int64)
@@ -545,11 +565,16 @@ def _read_csv(
     origin = "largest frame and point indices of its rows"
     _refuse_oversized(source_name, origin, n_frames, n_points, max_frames, max_points)
     linear = frames * n_points + points
-    n_pairs = n_frames * n_points
-    # Fast path: with F x P rows, every pair occurs exactly once iff every count is 1.
-    if n_pairs != n_rows or (np.bincount(linear, minlength=n_pairs) != 1).any():
-        raise MeasurementError(_pairs_problem(linear, n_frames, n_points, source_name))
-    W = np.empty((2 * n_frames, n_points))
+    # Checked on the rows, before W (F x P) is allocated: a stray large index (a frame or point
+    # with too few rows of its own) is refused without building the W it would imply.
+    if np.unique(linear).size != n_rows:
+        raise MeasurementError(_repeated_pairs(linear, n_frames, n_points, source_name))
+    if n_frames >= 2 and n_points >= 3:  # else Measurements names the size problem
+        check_observation_counts(
+            np.bincount(points, minlength=n_points), np.bincount(frames, minlength=n_frames)
+        )
+    # Pairs without a row are not observed: NaN, as in W of the other formats.
+    W = np.full((2 * n_frames, n_points), np.nan)
     flat = W.reshape(-1)
     flat[2 * frames * n_points + points] = x
     flat[(2 * frames + 1) * n_points + points] = y
@@ -579,14 +604,17 @@ def read_measurements(
     Returns
     -------
     Measurements
-        W (2F, P) float64 and the optional datasets found in the file, all validated.
+        W (2F, P) float64 (NaN where a point is not observed), its visibility (None when
+        nothing is missing) and the optional datasets found in the file, all validated.
 
     Raises
     ------
     MeasurementError
         For anything unusable: unreadable or truncated files, missing W/tracks, pickled or
         non-numeric data, groups or links where datasets belong, wrong shapes, sizes above the
-        limits, NaN/inf, incomplete or repeated CSV rows.
+        limits, infinite values, NaN in one coordinate only, a visibility that disagrees with
+        W, points observed in fewer than 2 frames, frames observing fewer than 3 points,
+        repeated CSV rows.
     """
     _check_limit(max_points, "max_points")
     _check_limit(max_frames, "max_frames")
@@ -610,6 +638,7 @@ def read_measurements(
 def _measurement_arrays(measurements: Measurements) -> dict[str, np.ndarray]:
     arrays = {"W": measurements.W}
     optional = {
+        "visibility": measurements.visibility,
         "R": measurements.rotations,
         "gt": measurements.ground_truth,
         "faces": measurements.faces,
@@ -626,7 +655,8 @@ def write_measurements(path: PathLike, measurements: Measurements) -> Path:
     ----------
     path : str or os.PathLike
         Target file; the format follows the extension: ``.npz`` (compressed), ``.h5`` /
-        ``.hdf5``, or ``.csv`` (long format ``frame,point,x,y``; W only).
+        ``.hdf5``, or ``.csv`` (long format ``frame,point,x,y``; W only, one row per observed
+        pair).
     measurements : Measurements
         What to write; datasets that are None are left out.
 
@@ -642,10 +672,11 @@ def write_measurements(path: PathLike, measurements: Measurements) -> Path:
             f"cannot tell the format of {path.name}: use the extension .npz, .h5, .hdf5 or .csv"
         )
     arrays = _measurement_arrays(measurements)
-    if suffix == ".csv" and len(arrays) > 1:
+    # CSV keeps the visibility as its missing rows.
+    extra = sorted(set(arrays) - {"W", "visibility"})
+    if suffix == ".csv" and extra:
         raise ValueError(
-            f"CSV holds only the tracks, not {', '.join(sorted(set(arrays) - {'W'}))}; write "
-            ".npz or .h5 to keep them"
+            f"CSV holds only the tracks, not {', '.join(extra)}; write .npz or .h5 to keep them"
         )
     with atomic_output(path) as temporary:
         if suffix == ".npz":
@@ -659,6 +690,8 @@ def write_measurements(path: PathLike, measurements: Measurements) -> Path:
             table = np.column_stack(
                 [frame_index, point_index, tracks[:, 0].ravel(), tracks[:, 1].ravel()]
             )
+            if measurements.visibility is not None:  # unobserved pairs get no row
+                table = table[measurements.visibility.ravel()]
             np.savetxt(
                 temporary,
                 table,
@@ -746,6 +779,10 @@ class ResultFile:
         moju version that wrote the file.
     metadata : dict
         Caller-supplied metadata (job id, input name, ...); empty when none was given.
+    visibility : ndarray of shape (F, P), bool, or None
+        The observations the solver used: True where point ``j`` was observed in frame
+        ``f``; ``shapes`` holds the other entries as filled in by the solver. None for files
+        written by versions that did not store it.
     """
 
     shapes: np.ndarray
@@ -759,6 +796,7 @@ class ResultFile:
     scale: float
     version: str
     metadata: dict[str, Any] = field(default_factory=dict)
+    visibility: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -796,6 +834,15 @@ def _result_contents(
             f"result.rotations {rotations.shape} and result.labels {labels.shape} do not match "
             f"result.shapes {shapes.shape}: expected ({n_frames}, 2, 3) and ({n_points},)"
         )
+    visibility = getattr(result, "visibility", None)
+    if visibility is None:  # a solve of complete data
+        visibility = np.ones((n_frames, n_points), dtype=bool)
+    visibility = np.ascontiguousarray(visibility, dtype=bool)
+    if visibility.shape != (n_frames, n_points):
+        raise ValueError(
+            f"result.visibility {visibility.shape} does not match result.shapes "
+            f"{shapes.shape}: expected ({n_frames}, {n_points})"
+        )
     history = {}
     for key, values in result.history.items():
         if not key or "/" in key or "\0" in key:
@@ -810,7 +857,12 @@ def _result_contents(
         "scale": float(result.scale),
         "version": __version__,
     }
-    arrays = {"shapes": shapes, "rotations": rotations, "labels": labels}
+    arrays = {
+        "shapes": shapes,
+        "rotations": rotations,
+        "labels": labels,
+        _RESULT_VISIBILITY: visibility,
+    }
     return arrays, history, scalars
 
 
@@ -848,7 +900,8 @@ def write_result(
 
     Notes
     -----
-    npz layout: arrays ``shapes``, ``rotations``, ``labels``, ``history_<key>``, 0-d
+    npz layout: arrays ``shapes``, ``rotations``, ``labels``, ``visibility`` (F x P bool,
+    all True when ``result.visibility`` is None), ``history_<key>``, 0-d
     ``n_iter`` (int64) and ``scale`` (float64), 0-d unicode ``stop_reason``, ``version`` and the
     JSON documents ``params``, ``timings``, ``metadata``. HDF5 layout: the same arrays as
     datasets, the history as datasets of group ``history``, the rest as root attributes.
@@ -881,6 +934,17 @@ def _text(value: Any) -> str:
     return value.decode() if isinstance(value, bytes) else str(value)
 
 
+def _result_visibility(arrays: Mapping[str, np.ndarray]) -> np.ndarray | None:
+    if _RESULT_VISIBILITY not in arrays:
+        return None
+    visibility = np.asarray(arrays[_RESULT_VISIBILITY], dtype=bool)
+    if visibility.shape != arrays["shapes"].shape[:2]:
+        raise ValueError(
+            f"visibility has shape {visibility.shape}, shapes {arrays['shapes'].shape}"
+        )
+    return visibility
+
+
 def read_result(path: PathLike) -> ResultFile:
     """Read a result file written by :func:`write_result` (npz or HDF5, by content).
 
@@ -905,12 +969,16 @@ def read_result(path: PathLike) -> ResultFile:
         if is_hdf5:
             with h5py.File(path, "r") as h5:
                 arrays = {name: h5[name][()] for name in _RESULT_ARRAYS}
+                if _RESULT_VISIBILITY in h5:
+                    arrays[_RESULT_VISIBILITY] = h5[_RESULT_VISIBILITY][()]
                 group = h5.get("history")
                 history = {key: group[key][()] for key in group} if group is not None else {}
                 scalars = dict(h5.attrs)
         else:
             with np.load(path, allow_pickle=False) as npz:
                 arrays = {name: npz[name] for name in _RESULT_ARRAYS}
+                if _RESULT_VISIBILITY in npz.files:
+                    arrays[_RESULT_VISIBILITY] = npz[_RESULT_VISIBILITY]
                 history = {
                     key[len(_HISTORY_PREFIX) :]: npz[key]
                     for key in npz.files
@@ -936,6 +1004,7 @@ def read_result(path: PathLike) -> ResultFile:
             scale=float(scalars["scale"]),
             version=_text(scalars["version"]),
             metadata=json_parts["metadata"],
+            visibility=_result_visibility(arrays),
         )
     except Exception as exc:  # h5py, zipfile and json each raise their own types
         raise ValueError(

@@ -14,6 +14,10 @@ alignment it applies before comparing:
   in the same world frame as the truth (e.g. solved with known rotations).
 
 All shapes are arrays of shape ``(F, P, 3)``: frame, point, coordinate.
+
+With missing data (a visibility mask, ``(F, P)`` bool, True = observed), :func:`e3d_occluded`
+measures the error over the entries the solver had to fill in; the alignment is still fitted
+over every point of a frame, as for :func:`e3d`.
 """
 
 from __future__ import annotations
@@ -164,6 +168,74 @@ def e3d(estimate: np.ndarray, truth: np.ndarray, alignment: Alignment = "procrus
     return float(_relative_errors(aligned, center_frames(truth)).mean())
 
 
+def _check_visibility(visibility: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    visibility = np.asarray(visibility)
+    if visibility.dtype != bool or visibility.shape != truth.shape[:2]:
+        raise ValueError(
+            f"visibility must be a bool array of shape (F, P) = {truth.shape[:2]}, got "
+            f"{visibility.dtype} {visibility.shape}"
+        )
+    return visibility
+
+
+def _occluded_errors(aligned: np.ndarray, truth: np.ndarray, occluded: np.ndarray) -> np.ndarray:
+    """Per-frame relative error over the occluded points of the frames that have any, (F',)."""
+    frames = np.flatnonzero(occluded.any(axis=1))
+    mask = occluded[frames, :, None]
+    truth_norms = np.sqrt(np.sum(np.where(mask, truth[frames], 0.0) ** 2, axis=(1, 2)))
+    if np.any(truth_norms == 0.0):
+        zero = frames[truth_norms == 0.0]
+        raise ValueError(
+            f"the occluded ground-truth points of frames {zero.tolist()} all lie at the frame's "
+            "centroid; their relative error is undefined"
+        )
+    differences = np.where(mask, aligned[frames] - truth[frames], 0.0)
+    return np.sqrt(np.sum(differences**2, axis=(1, 2))) / truth_norms
+
+
+def e3d_occluded(
+    estimate: np.ndarray,
+    truth: np.ndarray,
+    visibility: np.ndarray,
+    alignment: Alignment = "procrustes",
+) -> float:
+    """Mean relative 3D error over the unobserved (frame, point) entries only.
+
+    The estimate is centred and aligned exactly as by :func:`e3d` (over every point of each
+    frame); then, for each frame ``f`` with at least one unobserved point (set ``O_f``),
+    ``||S_est^f[O_f] - S_gt^f[O_f]||_F / ||S_gt^f[O_f]||_F`` with the ground truth centred
+    over all its points. The mean is over those frames; frames without unobserved points are
+    skipped.
+
+    Parameters
+    ----------
+    estimate : ndarray of shape (F, P, 3), float64
+        Reconstructed shapes (every point in every frame).
+    truth : ndarray of shape (F, P, 3), float64
+        Ground-truth shapes.
+    visibility : ndarray of shape (F, P), bool
+        True where the point was observed by the solver.
+    alignment : {"procrustes", "global", "sign"}, default "procrustes"
+        How the estimate is aligned before comparison.
+
+    Returns
+    -------
+    error : float
+        Dimensionless; 0 when the filled-in points are exact.
+
+    Raises
+    ------
+    ValueError
+        When ``visibility`` does not fit or marks every entry as observed.
+    """
+    estimate, truth = _check_shapes(estimate, truth)
+    occluded = ~_check_visibility(visibility, truth)
+    if not occluded.any():
+        raise ValueError("visibility marks every entry as observed: nothing is occluded")
+    aligned = align(estimate, truth, alignment)
+    return float(_occluded_errors(aligned, center_frames(truth), occluded).mean())
+
+
 def rigid_approximation(shapes: np.ndarray, n_iter: int = 20) -> np.ndarray:
     """Best single rigid shape for a whole sequence (generalised orthogonal Procrustes).
 
@@ -265,6 +337,7 @@ def evaluate(
     truth: np.ndarray,
     R_est: np.ndarray | None = None,
     R_true: np.ndarray | None = None,
+    visibility: np.ndarray | None = None,
 ) -> dict[str, float]:
     """All accuracy measures of a reconstruction in one dictionary.
 
@@ -278,17 +351,34 @@ def evaluate(
         Estimated camera rotations.
     R_true : ndarray of shape (F, 2, 3), float64, optional
         True camera rotations.
+    visibility : ndarray of shape (F, P), bool, optional
+        The observations the solver used (True = observed).
 
     Returns
     -------
     scores : dict of str to float
-        ``e3d_procrustes``, ``e3d_global``, ``e3d_sign`` (dimensionless) and, when both
-        rotation stacks are given, ``rotation_error_deg`` (degrees).
+        ``e3d_procrustes``, ``e3d_global``, ``e3d_sign`` (dimensionless, over all points);
+        when ``visibility`` has unobserved entries, ``observed_fraction`` and
+        ``e3d_occluded_procrustes``, ``e3d_occluded_global``, ``e3d_occluded_sign``
+        (:func:`e3d_occluded`); when both rotation stacks are given, ``rotation_error_deg``
+        (degrees).
     """
     estimate, truth = _check_shapes(estimate, truth)
     if (R_est is None) != (R_true is None):
         raise ValueError("give both R_est and R_true, or neither")
-    scores = {f"e3d_{mode}": e3d(estimate, truth, mode) for mode in ALIGNMENTS}
+    occluded = None if visibility is None else ~_check_visibility(visibility, truth)
+    if occluded is not None and not occluded.any():
+        occluded = None
+    centred_truth = center_frames(truth)
+    scores = {}
+    for mode in ALIGNMENTS:
+        aligned = align(estimate, truth, mode)
+        scores[f"e3d_{mode}"] = float(_relative_errors(aligned, centred_truth).mean())
+        if occluded is not None:
+            errors = _occluded_errors(aligned, centred_truth, occluded)
+            scores[f"e3d_occluded_{mode}"] = float(errors.mean())
+    if occluded is not None:
+        scores["observed_fraction"] = float(1.0 - occluded.mean())
     if R_est is not None and R_true is not None:
         R_est, R_true = _check_rotations(R_est, R_true)
         if R_true.shape[0] != truth.shape[0]:

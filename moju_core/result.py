@@ -56,6 +56,13 @@ class Result:
         settled; see docs/solver.md), ``"rho_max"`` or ``"max_iter"``.
     scale : float
         The factor the tracks were divided by before solving (RMS of the centred tracks).
+    extras : dict of str to object
+        Method-specific by-products (not stored in result files).
+    visibility : ndarray of shape (F, P), bool, or None
+        The observations used: True where point ``j`` was observed in frame ``f``. ``shapes``
+        holds every point in every frame; where this is False, the solver filled it in. All
+        True for complete data; None only for results built without it (result files then
+        store all True).
     """
 
     shapes: np.ndarray
@@ -68,6 +75,7 @@ class Result:
     stop_reason: str
     scale: float
     extras: dict[str, object] = field(default_factory=dict)
+    visibility: np.ndarray | None = None
 
     @property
     def converged(self) -> bool:

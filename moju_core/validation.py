@@ -20,9 +20,13 @@ __all__ = [
     "check_faces",
     "check_ground_truth",
     "check_measurements",
+    "check_observation_counts",
+    "check_observations",
     "check_rotations",
+    "check_visibility",
     "estimate_memory_bytes",
     "tracks_to_W",
+    "with_missing",
 ]
 
 #: Largest deviation of ``R_f R_f^T`` from the identity accepted by :func:`check_rotations`.
@@ -103,30 +107,19 @@ def _first_non_finite(array: np.ndarray) -> tuple[int, int, tuple[int, ...]] | N
     return n_nan, n_inf, tuple(int(i) for i in first)
 
 
-def check_measurements(W: ArrayLike, *, min_frames: int = 2, min_points: int = 3) -> np.ndarray:
-    """Check a measurement matrix and return it as C-contiguous float64.
+#: Fewest frames in which every point must be observed: depth comes from seeing a point move.
+MIN_FRAMES_PER_POINT = 2
+#: Fewest points every frame must observe: an orthographic camera (rotation and image
+#: translation) is pinned down by three non-collinear points, the same minimum as the number
+#: of points of complete data.
+MIN_POINTS_PER_FRAME = 3
+#: Most frame or point numbers quoted in one message.
+_QUOTED = 8
 
-    Parameters
-    ----------
-    W : array_like of shape (2F, P)
-        Image coordinates in pixels (or any unit): rows ``2f`` and ``2f+1`` are the x and y
-        of frame ``f``, column ``j`` is point ``j``. Integer and float dtypes are accepted.
-    min_frames : int, default 2
-        Smallest number of frames F accepted.
-    min_points : int, default 3
-        Smallest number of points P accepted.
 
-    Returns
-    -------
-    W : ndarray of shape (2F, P), float64, C-contiguous
-        The input itself when it already has that layout, otherwise a converted copy.
-
-    Raises
-    ------
-    MeasurementError
-        When W is not 2-D, not real-valued, has an odd number of rows, too few frames or
-        points, or holds NaN or infinite values.
-    """
+def _check_layout(W: ArrayLike, min_frames: int, min_points: int) -> np.ndarray:
+    """Shape and dtype checks shared by :func:`check_measurements` and
+    :func:`check_observations`; returns W as C-contiguous float64 (NaN and inf kept)."""
     W = _as_array("W", W)
     check_dtype("W", W.dtype)
     if W.ndim != 2:
@@ -150,9 +143,39 @@ def check_measurements(W: ArrayLike, *, min_frames: int = 2, min_points: int = 3
         raise MeasurementError(
             f"W has {n_points} point(s) (columns); at least {min_points} are needed"
         )
-    # A long double beyond float64's range becomes inf here, which the check below reports.
+    # A long double beyond float64's range becomes inf here, which the callers report.
     with np.errstate(over="ignore"):
-        W = np.ascontiguousarray(W, dtype=np.float64)
+        return np.ascontiguousarray(W, dtype=np.float64)
+
+
+def check_measurements(W: ArrayLike, *, min_frames: int = 2, min_points: int = 3) -> np.ndarray:
+    """Check a complete measurement matrix (every point in every frame), return it as float64.
+
+    Measurements with unobserved entries are checked by :func:`check_observations`; on
+    complete data both return the same array.
+
+    Parameters
+    ----------
+    W : array_like of shape (2F, P)
+        Image coordinates in pixels (or any unit): rows ``2f`` and ``2f+1`` are the x and y
+        of frame ``f``, column ``j`` is point ``j``. Integer and float dtypes are accepted.
+    min_frames : int, default 2
+        Smallest number of frames F accepted.
+    min_points : int, default 3
+        Smallest number of points P accepted.
+
+    Returns
+    -------
+    W : ndarray of shape (2F, P), float64, C-contiguous
+        The input itself when it already has that layout, otherwise a converted copy.
+
+    Raises
+    ------
+    MeasurementError
+        When W is not 2-D, not real-valued, has an odd number of rows, too few frames or
+        points, or holds NaN or infinite values.
+    """
+    W = _check_layout(W, min_frames, min_points)
     bad = _first_non_finite(W)
     if bad is not None:
         n_nan, n_inf, (row, column) = bad
@@ -160,8 +183,203 @@ def check_measurements(W: ArrayLike, *, min_frames: int = 2, min_points: int = 3
         raise MeasurementError(
             f"W holds {n_nan} NaN and {n_inf} infinite value(s); the first is {coordinate} of "
             f"frame {row // 2}, point {column} (row {row}, column {column}). Every point must be "
-            "tracked in every frame: drop the points that are missing in some frames"
+            "tracked in every frame here; use check_observations for measurements in which "
+            "unobserved points are NaN (x and y both)"
         )
+    return W
+
+
+def _quoted(indices: np.ndarray) -> str:
+    shown = ", ".join(str(int(i)) for i in indices[:_QUOTED])
+    return shown + (", ..." if indices.size > _QUOTED else "")
+
+
+def check_visibility(visibility: ArrayLike, n_frames: int, n_points: int) -> np.ndarray:
+    """Check a visibility mask and return it as C-contiguous bool.
+
+    Parameters
+    ----------
+    visibility : array_like of shape (F, P), bool (or integers 0 and 1)
+        ``visibility[f, j]`` is True when point ``j`` is observed in frame ``f``.
+    n_frames, n_points : int
+        F and P of the measurements.
+
+    Returns
+    -------
+    visibility : ndarray of shape (F, P), bool, C-contiguous
+    """
+    visibility = _as_array("visibility", visibility)
+    kind = visibility.dtype.kind
+    if kind != "b":
+        check_dtype("visibility", visibility.dtype, integer=True)
+    if visibility.shape != (n_frames, n_points):
+        raise MeasurementError(
+            f"visibility has shape {visibility.shape}; it needs ({n_frames}, {n_points}): one "
+            "flag per frame and point, True where the point is observed"
+        )
+    if kind != "b":
+        if visibility.size and (visibility.min() < 0 or visibility.max() > 1):
+            raise MeasurementError(
+                f"visibility holds values from {visibility.min()} to {visibility.max()}; it "
+                "needs booleans (or 0 and 1): True where the point is observed"
+            )
+    return np.ascontiguousarray(visibility, dtype=bool)
+
+
+def _visibility_of(W: np.ndarray, visibility: ArrayLike | None) -> np.ndarray:
+    """The (F, P) mask of W's finite entries, checked against ``visibility`` when given."""
+    n_frames, n_points = W.shape[0] // 2, W.shape[1]
+    bad = _first_non_finite(W)
+    if bad is not None and bad[1]:
+        n_inf = bad[1]
+        row, column = (int(i) for i in np.argwhere(np.isinf(W))[0])
+        raise MeasurementError(
+            f"W holds {n_inf} infinite value(s); the first is {'xy'[row % 2]} of frame "
+            f"{row // 2}, point {column} (row {row}, column {column}). Mark a point that is not "
+            "observed in a frame with NaN (x and y both), never with inf"
+        )
+    finite = np.isfinite(W).reshape(n_frames, 2, n_points)
+    observed = finite[:, 0] & finite[:, 1]
+    half = finite[:, 0] != finite[:, 1]
+    if half.any():
+        frame, point = (int(i) for i in np.argwhere(half)[0])
+        nan, other = ("y", "x") if finite[frame, 0, point] else ("x", "y")
+        raise MeasurementError(
+            f"W holds {int(half.sum())} (frame, point) entries with one coordinate NaN and the "
+            f"other not; the first is {nan} of frame {frame}, point {point} (NaN while its "
+            f"{other} is not). A point that is not observed in a frame has x and y both NaN: "
+            "set both, or neither"
+        )
+    if visibility is None:
+        return observed
+    visibility = check_visibility(visibility, n_frames, n_points)
+    disagree = visibility != observed
+    if disagree.any():
+        frame, point = (int(i) for i in np.argwhere(disagree)[0])
+        if visibility[frame, point]:
+            what = "visibility says it is observed but W holds NaN there"
+        else:
+            what = "visibility says it is not observed but W holds a value there"
+        raise MeasurementError(
+            f"W and visibility disagree at {int(disagree.sum())} (frame, point) entries; the "
+            f"first is frame {frame}, point {point}: {what}. W must be NaN exactly where "
+            "visibility is False, e.g. W[np.repeat(~visibility, 2, axis=0)] = np.nan, or leave "
+            "visibility out and mark the unobserved entries of W with NaN"
+        )
+    return visibility
+
+
+def check_observation_counts(frames_per_point: np.ndarray, points_per_frame: np.ndarray) -> None:
+    """Refuse points seen in too few frames and frames that see too few points.
+
+    Parameters
+    ----------
+    frames_per_point : ndarray of shape (P,), int
+        In how many frames each point is observed.
+    points_per_frame : ndarray of shape (F,), int
+        How many points each frame observes.
+
+    Raises
+    ------
+    MeasurementError
+        When a point is observed in fewer than :data:`MIN_FRAMES_PER_POINT` frames or a frame
+        observes fewer than :data:`MIN_POINTS_PER_FRAME` points; the message names them.
+    """
+    frames_per_point = np.asarray(frames_per_point)
+    points_per_frame = np.asarray(points_per_frame)
+    thin_points = np.flatnonzero(frames_per_point < MIN_FRAMES_PER_POINT)
+    if thin_points.size:
+        raise MeasurementError(
+            f"{thin_points.size} point(s) are observed (not NaN) in fewer than "
+            f"{MIN_FRAMES_PER_POINT} frames: point(s) {_quoted(thin_points)}. A point's depth "
+            "comes from seeing it in several frames: drop these points (columns of W), e.g. "
+            f"keep = visibility.sum(axis=0) >= {MIN_FRAMES_PER_POINT}; W = W[:, keep]"
+        )
+    thin_frames = np.flatnonzero(points_per_frame < MIN_POINTS_PER_FRAME)
+    if thin_frames.size:
+        counts = _quoted(points_per_frame[thin_frames])
+        raise MeasurementError(
+            f"{thin_frames.size} frame(s) observe (not NaN) fewer than {MIN_POINTS_PER_FRAME} "
+            f"points: frame(s) {_quoted(thin_frames)}, with {counts} observed point(s). A "
+            f"frame's camera needs at least {MIN_POINTS_PER_FRAME} observed points: drop these "
+            "frames (rows 2f and 2f+1 of W, and row f of visibility) or track more points in them"
+        )
+
+
+def check_observations(
+    W: ArrayLike,
+    visibility: ArrayLike | None = None,
+    *,
+    min_frames: int = 2,
+    min_points: int = 3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Check measurements that may miss points in some frames.
+
+    A point that is not observed in a frame has NaN as both its x and its y there. The mask
+    ``visibility`` may be given as well; it must then agree with W. Every point must be
+    observed in at least :data:`MIN_FRAMES_PER_POINT` (2) frames and every frame must observe
+    at least :data:`MIN_POINTS_PER_FRAME` (3) points. Infinite values are always refused.
+
+    Parameters
+    ----------
+    W : array_like of shape (2F, P)
+        Image coordinates, rows ``2f`` and ``2f+1`` are x and y of frame ``f``; NaN (x and y
+        together) where a point is not observed.
+    visibility : array_like of shape (F, P), bool, optional
+        True where point ``j`` is observed in frame ``f``. When given, W must be NaN exactly
+        where it is False.
+    min_frames, min_points : int
+        Smallest F and P accepted, as in :func:`check_measurements`.
+
+    Returns
+    -------
+    W : ndarray of shape (2F, P), float64, C-contiguous
+        W with 0.0 at the unobserved entries. For complete data it is exactly what
+        :func:`check_measurements` returns (the input itself when it already is C-contiguous
+        float64); otherwise a new array (the input is never modified).
+    visibility : ndarray of shape (F, P), bool
+        True where the point is observed (all True for complete data).
+
+    Raises
+    ------
+    MeasurementError
+        For everything :func:`check_measurements` refuses except NaN, and for a NaN in only
+        one coordinate, a visibility that disagrees with W, a point observed in fewer than 2
+        frames or a frame observing fewer than 3 points.
+    """
+    W = _check_layout(W, min_frames, min_points)
+    observed = _visibility_of(W, visibility)
+    if observed.all():
+        return W, observed
+    check_observation_counts(
+        np.count_nonzero(observed, axis=0), np.count_nonzero(observed, axis=1)
+    )
+    return np.where(np.repeat(observed, 2, axis=0), W, 0.0), observed
+
+
+def with_missing(W: ArrayLike, visibility: ArrayLike) -> np.ndarray:
+    """W with NaN (x and y) at the entries that ``visibility`` marks as not observed.
+
+    Parameters
+    ----------
+    W : array_like of shape (2F, P)
+        Measurements (any value at the unobserved entries).
+    visibility : array_like of shape (F, P), bool
+        True where the point is observed.
+
+    Returns
+    -------
+    ndarray of shape (2F, P), float64
+        A new array; the input is not modified.
+    """
+    W = np.array(W, dtype=np.float64)
+    mask = np.asarray(visibility, dtype=bool)
+    if W.ndim != 2 or mask.shape != (W.shape[0] // 2, W.shape[1]) or W.shape[0] % 2:
+        raise MeasurementError(
+            f"W {W.shape} and visibility {mask.shape} do not fit: they need shapes (2F, P) "
+            "and (F, P)"
+        )
+    W[np.repeat(~mask, 2, axis=0)] = np.nan
     return W
 
 

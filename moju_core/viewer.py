@@ -2,9 +2,10 @@
 
 The viewer (the service's web page and the standalone file of ``moju view``) shows one frame
 at a time as a 3D point cloud, or as a mesh when triangles were uploaded, coloured by local
-group label, by depth or by the uploaded colours, next to the convergence history. This
-module turns a result into the JSON documents the viewer draws; it knows nothing of HTTP or
-HTML.
+group label, by depth or by the uploaded colours, next to the convergence history. When points
+were missing from the input, each frame lists which of its shown points the solver filled in
+(not observed in that frame), so that the viewer can draw them apart. This module turns a
+result into the JSON documents the viewer draws; it knows nothing of HTTP or HTML.
 
 Browsers slow down beyond a few tens of thousands of 3D markers, so a result with more than
 ``max_points`` points is shown through a subset of its points: a fixed random sample
@@ -76,6 +77,9 @@ class ResultView:
         Iterations run.
     stop_reason : str
         Why the loop stopped.
+    visibility : array-like of shape (F, P), bool, or None
+        True where a point was observed; ``visibility[f]`` reads one frame. None when the
+        result does not say (every point is then shown as observed).
     """
 
     shapes: FrameStack
@@ -84,6 +88,7 @@ class ResultView:
     history: Mapping[str, np.ndarray] = field(default_factory=dict)
     n_iter: int = 0
     stop_reason: str = ""
+    visibility: FrameStack | None = None
 
     @property
     def n_frames(self) -> int:
@@ -106,7 +111,14 @@ class ResultView:
             history=dict(result.history),
             n_iter=int(result.n_iter),
             stop_reason=str(result.stop_reason),
+            visibility=getattr(result, "visibility", None),
         )
+
+    def observed(self, frame: int) -> np.ndarray:
+        """(P,) bool: which points frame ``frame`` observed (all True without a visibility)."""
+        if self.visibility is None:
+            return np.ones(self.n_points, dtype=bool)
+        return np.asarray(self.visibility[frame], dtype=bool)
 
 
 @contextlib.contextmanager
@@ -146,6 +158,7 @@ def open_result(path: str | Path) -> Iterator[ResultView]:
                 history={key: group[key][()] for key in group} if group is not None else {},
                 n_iter=int(h5.attrs["n_iter"]),
                 stop_reason=str(h5.attrs["stop_reason"]),
+                visibility=h5["visibility"] if "visibility" in h5 else None,
             )
         except KeyError as exc:
             raise ValueError(
@@ -223,7 +236,9 @@ def frame_data(view: ResultView, frame: int, indices: np.ndarray) -> dict[str, A
     dict
         ``frame`` and the lists ``x``, ``y``, ``z`` (coordinates in the units of the input)
         and ``depth`` (:func:`camera_depth`), one entry per shown point, rounded to
-        :data:`RELATIVE_PRECISION` of the frame's largest absolute coordinate.
+        :data:`RELATIVE_PRECISION` of the frame's largest absolute coordinate; ``unobserved``:
+        the positions (0-based, in the shown points) of the points this frame did not observe,
+        i.e. that the solver filled in (empty for complete data).
     """
     if not 0 <= frame < view.n_frames:
         raise IndexError(f"frame {frame} is outside 0..{view.n_frames - 1}")
@@ -236,6 +251,7 @@ def frame_data(view: ResultView, frame: int, indices: np.ndarray) -> dict[str, A
         "y": _rounded(points[:, 1], magnitude),
         "z": _rounded(points[:, 2], magnitude),
         "depth": _rounded(depth, magnitude),
+        "unobserved": np.flatnonzero(~view.observed(frame)[indices]).tolist(),
     }
 
 
@@ -282,13 +298,16 @@ def summary(
         strings or None), ``faces`` (lists of three shown-point positions, or None), ``ranges``
         (``x``, ``y``, ``z``, ``depth``: [low, high] over every frame, padded by 5 %),
         ``rotations`` (F x 2 x 3, rounded to 1e-6), ``history`` (lists, NaN as None),
-        ``n_iter`` and ``stop_reason``.
+        ``n_iter``, ``stop_reason`` and ``observed_fraction`` (of all F x P entries, 1.0 when
+        nothing was missing).
     """
     indices = np.asarray(indices, dtype=np.int64)
     decimated = len(indices) < view.n_points
     low = np.full(4, np.inf)
     high = np.full(4, -np.inf)
+    n_observed = 0
     for frame in range(view.n_frames):
+        n_observed += int(np.count_nonzero(view.observed(frame)))
         points = np.asarray(view.shapes[frame], dtype=np.float64)[indices]
         columns = np.column_stack([points, camera_depth(points, view.rotations[frame])])
         if len(columns):
@@ -315,6 +334,7 @@ def summary(
         "history": {key: _finite_or_none(values) for key, values in view.history.items()},
         "n_iter": int(view.n_iter),
         "stop_reason": view.stop_reason,
+        "observed_fraction": n_observed / max(view.n_frames * view.n_points, 1),
     }
 
 

@@ -44,6 +44,17 @@ class InputSummary(BaseModel):
     )
     has_faces: bool = Field(description="The input carries triangles (exported in PLY files).")
     has_colors: bool = Field(description="The input carries per-point colours.")
+    observed_fraction: float = Field(
+        1.0,
+        gt=0.0,
+        le=1.0,
+        description=(
+            "Fraction of the F x P (frame, point) entries that are observed: 1 when every "
+            "point is tracked in every frame, less when some are missing (NaN or visibility "
+            "False in the upload); the solver fills in the others."
+        ),
+        examples=[0.85],
+    )
 
 
 class ProgressReport(BaseModel):
@@ -187,8 +198,11 @@ class TracksBody(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    tracks: list[list[list[float]]] = Field(
-        description="F x P x 2 nested lists: tracks[f][j] = [x, y].",
+    tracks: list[list[list[float | None]]] = Field(
+        description=(
+            "F x P x 2 nested lists: tracks[f][j] = [x, y], or [null, null] where point j is "
+            "not observed in frame f."
+        ),
         examples=[[[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], [[0.1, 0.0], [1.0, 0.1], [0.0, 0.9]]]],
     )
     params: SolverParams | None = Field(None, description="Solver parameters.")
@@ -197,6 +211,13 @@ class TracksBody(BaseModel):
     )
     ground_truth: list[list[list[float]]] | None = Field(
         None, description="Optional ground-truth shapes gt, F x P x 3 (enables metrics)."
+    )
+    visibility: list[list[bool]] | None = Field(
+        None,
+        description=(
+            "Optional F x P flags, true where point j is observed in frame f; must agree with "
+            "the [null, null] entries of tracks."
+        ),
     )
 
 
@@ -220,7 +241,8 @@ class Metrics(BaseModel):
 
     e3D is the relative 3D error of the paper's Eq. 17 after the named alignment:
     ``procrustes`` (an orthogonal transform per frame, as in published tables), ``global``
-    (one transform for the sequence) and ``sign`` (no rotation, only the better depth sign).
+    (one transform for the sequence) and ``sign`` (no rotation, only the better depth sign),
+    over every point; with missing data also over the unobserved entries alone.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -233,4 +255,23 @@ class Metrics(BaseModel):
         description="Mean camera rotation error in degrees; present when true rotations "
         "were uploaded.",
         examples=[1.9],
+    )
+    observed_fraction: float | None = Field(
+        None,
+        description="Fraction of the (frame, point) entries observed; present when some "
+        "were missing.",
+        examples=[0.7],
+    )
+    e3d_occluded_procrustes: float | None = Field(
+        None,
+        description="e3D over the unobserved entries only (per-frame Procrustes alignment "
+        "fitted on all points; each frame relative to its unobserved ground-truth points); "
+        "present when some entries were missing.",
+        examples=[0.08],
+    )
+    e3d_occluded_global: float | None = Field(
+        None, description="As e3d_occluded_procrustes, with one global alignment."
+    )
+    e3d_occluded_sign: float | None = Field(
+        None, description="As e3d_occluded_procrustes, depth sign only."
     )

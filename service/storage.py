@@ -2,7 +2,8 @@
 
 Layout of :class:`LocalStorage` (the directory is the volume shared by the API and workers)::
 
-    <data_dir>/jobs/<uuid>/input.npz     normalised input, as the API validated it
+    <data_dir>/jobs/<uuid>/input.npz     normalised input, as the API validated it (with its
+                                         visibility when points are missing)
     <data_dir>/jobs/<uuid>/result.h5     the worker's result (moju_core.io.write_result)
     <data_dir>/jobs/<uuid>/result.npz    npz copy, made on the first npz download
     <data_dir>/jobs/<uuid>/metrics.json  accuracy against the ground truth, made on demand
@@ -275,4 +276,5 @@ def _as_result(stored: ResultFile) -> Result:
         n_iter=stored.n_iter,
         stop_reason=stored.stop_reason,
         scale=stored.scale,
+        visibility=stored.visibility,
     )

@@ -199,10 +199,13 @@ def _array(name: str, value: Any) -> np.ndarray:
 
 
 def _measurements_from_json(body: TracksBody) -> Measurements:
-    W = tracks_to_W(_array("tracks", body.tracks))
+    W = tracks_to_W(_array("tracks", body.tracks))  # null coordinates become NaN
     rotations = None if body.rotations is None else _array("rotations", body.rotations)
     truth = None if body.ground_truth is None else _array("ground_truth", body.ground_truth)
-    return Measurements(W=W, rotations=rotations, ground_truth=truth)
+    visibility = None
+    if body.visibility is not None:
+        visibility = _array("visibility", body.visibility).astype(bool)
+    return Measurements(W=W, rotations=rotations, ground_truth=truth, visibility=visibility)
 
 
 async def _from_json(request: Request, settings: Settings) -> Submission:
@@ -262,6 +265,7 @@ def _submission(
         has_ground_truth=measurements.ground_truth is not None,
         has_faces=measurements.faces is not None,
         has_colors=measurements.colors is not None,
+        observed_fraction=measurements.observed_fraction,
     )
     return Submission(measurements=measurements, params=params, summary=summary)
 

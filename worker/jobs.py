@@ -112,11 +112,14 @@ def _solve(
     with threadpool_limits(limits=threads), warnings.catch_warnings(record=True) as caught:
         # The user sees the solver's warnings in the job resource (result.warnings).
         warnings.simplefilter("always")
+        # The mask only when points are missing: complete data take the call as before.
+        masked = {} if measurements.visibility is None else {"visibility": measurements.visibility}
         result = reconstruct(
             measurements.W,
             record.parameters,
             rotations=measurements.rotations,
             callback=reporter,
+            **masked,
         )
     for warning in caught:
         logger.warning("job %s: %s", record.id, warning.message)

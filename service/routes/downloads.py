@@ -57,7 +57,9 @@ def finished_record(services: Services, job_id: UUID, owner: str) -> JobRecord:
     operation_id="download_result",
     summary="Download the result (HDF5 or npz)",
     description=(
-        "shapes (F x P x 3), rotations (F x 2 x 3), labels (P), the convergence history, the "
+        "shapes (F x P x 3, every point in every frame: the unobserved ones filled in by the "
+        "solver), visibility (F x P bool, true where the point was observed), rotations "
+        "(F x 2 x 3), labels (P), the convergence history, the "
         "resolved parameters, timings and metadata, in the layout of "
         "`moju_core.io.write_result` (readable with `moju_core.io.read_result`).\n\n"
         f"    curl -o result.npz '{_EXAMPLE}/result?format=npz'"
@@ -205,11 +207,14 @@ def _compute_metrics(services: Services, job_id: UUID) -> dict[str, float]:
     measurements = services.storage.read_input(job_id)
     result = services.storage.read_result(job_id)
     rotations_true = measurements.rotations
+    # The observations the solver used (stored with the result), else those of the input.
+    visibility = result.visibility if result.visibility is not None else measurements.visibility
     scores = evaluate(
         result.shapes,
         measurements.ground_truth,
         R_est=result.rotations if rotations_true is not None else None,
         R_true=rotations_true,
+        visibility=visibility,
     )
     return {name: float(value) for name, value in scores.items()}
 
@@ -221,7 +226,9 @@ def _compute_metrics(services: Services, job_id: UUID) -> dict[str, float]:
     description=(
         "e3D (relative 3D error, the paper's Eq. 17) after per-frame Procrustes, global and "
         "sign-only alignment, and the mean rotation error in degrees when true rotations "
-        "were uploaded. Only for jobs whose input held ground truth `gt` (404 otherwise). "
+        "were uploaded. When points were missing, also the fraction observed and the e3D "
+        "over the unobserved entries alone. Only for jobs whose input held ground truth `gt` "
+        "(404 otherwise). "
         "Computed on the first request and cached.\n\n"
         f"    curl {_EXAMPLE}/metrics"
     ),

@@ -150,9 +150,14 @@ _SUBMIT_BODY: dict[str, Any] = {
                             "type": "string",
                             "format": "binary",
                             "description": (
-                                "npz or HDF5 with W (2F x P) or tracks (F x P x 2) and "
-                                "optional R, gt, faces, colors; or CSV with header "
-                                "frame,point,x,y."
+                                "npz or HDF5 with W (2F x P) or tracks (F x P x 2), NaN "
+                                "(x and y) where a point is not observed in a frame, and "
+                                "optional visibility (F x P bool, true = observed; must "
+                                "agree with the NaN), R, gt, faces, colors; or CSV with "
+                                "header frame,point,x,y, one row per observed point and "
+                                "frame (a missing row is an unobserved point). Every point "
+                                "must be observed in 2 frames or more, every frame must "
+                                "observe 3 points or more."
                             ),
                         },
                         "params": {
@@ -190,8 +195,11 @@ _SUBMIT_BODY: dict[str, Any] = {
     summary="Submit a reconstruction job",
     description=(
         "Upload dense 2D tracks and solver parameters. The input is validated completely "
-        "(shape, dtype, finiteness, size limits; pickles are refused) before the job is "
-        "queued. Answers 202 with the job resource and a `Location` header naming it.\n\n"
+        "(shape, dtype, missing entries, size limits; pickles are refused) before the job is "
+        "queued. Points missing from some frames are accepted (NaN, a visibility mask, "
+        "missing CSV rows, or [null, null] in JSON tracks): the job's `input.observed_fraction` "
+        "says how much was observed, and the result holds every point in every frame. "
+        "Answers 202 with the job resource and a `Location` header naming it.\n\n"
         "curl example:\n\n"
         "    curl -F file=@face_small.npz -F 'params={\"max_iter\": 100}' "
         "http://127.0.0.1:8000/v1/jobs"

@@ -114,6 +114,13 @@ class ViewerSummary(BaseModel):
     )
     n_iter: int = Field(description="ADMM iterations run.", examples=[120])
     stop_reason: str = Field(description="converged, rho_max or max_iter.")
+    observed_fraction: float = Field(
+        description=(
+            "Fraction of the F x P (frame, point) entries that were observed; below 1 the "
+            "frames list the points the solver filled in."
+        ),
+        examples=[1.0],
+    )
 
 
 class ViewerFrame(BaseModel):
@@ -127,6 +134,13 @@ class ViewerFrame(BaseModel):
     z: list[float]
     depth: list[float] = Field(
         description="Depth along the frame's optical axis r1 x r2 (camera rotation rows)."
+    )
+    unobserved: list[int] = Field(
+        default_factory=list,
+        description=(
+            "Positions (0-based, in this frame's lists) of the points not observed in this "
+            "frame: filled in by the solver. Empty when every shown point was observed."
+        ),
     )
 
 

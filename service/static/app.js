@@ -341,6 +341,12 @@
       ),
     );
     const size = element("td", {}, `${job.input.frames} \u00d7 ${job.input.points}`);
+    const observed = job.input.observed_fraction;
+    if (typeof observed === "number" && observed < 1) {
+      // Points missing from the upload: the solver fills them in.
+      const text = `${(100 * observed).toFixed(1)} % observed`;
+      size.append(element("div", { class: "muted observed" }, text));
+    }
     const status = element("td", {});
     status.append(element("span", { class: `badge status-${job.status}` }, job.status));
     tr.append(jobCell, size, status, progressCell(job), actionsCell(job));

@@ -2,7 +2,9 @@
  * MoJu result viewer: the recovered shapes one frame at a time as an interactive 3D point
  * cloud (or a surface when triangles were uploaded), a frame slider and a play button,
  * points coloured by local group, by depth or by the uploaded colours, and the convergence
- * curve. Drawn with plotly.js (global `Plotly`).
+ * curve. When points were missing from the input, the ones the solver filled in (not observed
+ * in the frame shown) are drawn dimmed, hidden or like the others, as the user chooses.
+ * Drawn with plotly.js (global `Plotly`).
  *
  * The same file serves the web page of the service (data fetched from
  * /v1/jobs/{id}/viewer-data, one frame at a time) and the standalone file written by
@@ -30,6 +32,45 @@
     depth: "depth",
     input: "uploaded colours",
   };
+  // How the points not observed in a frame (filled in by the solver) are drawn.
+  const FILLED_MODES = {
+    dim: "dimmed",
+    hide: "hidden",
+    same: "like observed ones",
+  };
+  // Opacity of dimmed filled-in markers, and how far their mesh colours fade to white.
+  const FILLED_OPACITY = 0.3;
+  const FILLED_FADE = 0.7;
+
+  /**
+   * Split the shown points of a frame into the observed ones and the filled-in ones.
+   * `unobserved`: positions of the filled-in points (a frame document's `unobserved`).
+   * Returns {observed, filled}: arrays of positions, each in increasing order.
+   */
+  function splitObserved(count, unobserved) {
+    const filled = Array.from(unobserved || []);
+    const isFilled = new Uint8Array(count);
+    for (const position of filled) {
+      isFilled[position] = 1;
+    }
+    const observed = [];
+    for (let position = 0; position < count; position += 1) {
+      if (!isFilled[position]) {
+        observed.push(position);
+      }
+    }
+    return { observed, filled };
+  }
+
+  /** `#rrggbb` faded towards white by `amount` in [0, 1]. */
+  function fade(color, amount) {
+    const value = parseInt(color.slice(1), 16);
+    const channel = (shift) => {
+      const c = (value >> shift) & 255;
+      return Math.round(c + (255 - c) * amount).toString(16).padStart(2, "0");
+    };
+    return `#${channel(16)}${channel(8)}${channel(0)}`;
+  }
 
   async function fetchJson(url, headers = {}) {
     let response;
@@ -147,6 +188,15 @@
         element("option", { value: "points" }, "points"),
       );
       this.styleLabel.append(this.styleSelect);
+      this.filledLabel = element("label", { hidden: "" }, "Filled-in points ");
+      this.filledSelect = element("select", {
+        class: "moju-filled", "aria-label": "Filled-in points",
+        title: "Points not observed in this frame, whose position the solver filled in",
+      });
+      for (const [mode, label] of Object.entries(FILLED_MODES)) {
+        this.filledSelect.append(element("option", { value: mode }, label));
+      }
+      this.filledLabel.append(this.filledSelect);
       this.cameraButton = element(
         "button",
         { type: "button", class: "moju-camera", title: "Look along this frame's optical axis" },
@@ -154,7 +204,7 @@
       );
       controls.append(
         this.playButton, this.slider, this.frameLabel, colorLabel, this.styleLabel,
-        this.cameraButton,
+        this.filledLabel, this.cameraButton,
       );
       const curveHeading = element("div", { class: "moju-curve-heading" });
       const curveLabel = element("label", {}, "Convergence: ");
@@ -172,6 +222,7 @@
       this.playButton.addEventListener("click", () => (this.playing ? this.stop() : this.play()));
       this.colorSelect.addEventListener("change", () => this.redraw());
       this.styleSelect.addEventListener("change", () => this.redraw());
+      this.filledSelect.addEventListener("change", () => this.redraw());
       this.curveSelect.addEventListener("change", () => this.drawCurve());
       this.cameraButton.addEventListener("click", () => {
         if (this.summary) {
@@ -199,6 +250,9 @@
         }
       }
       this.styleLabel.hidden = !s.faces;
+      // Older result files say nothing about visibility: everything counts as observed.
+      this.hasMissing = typeof s.observed_fraction === "number" && s.observed_fraction < 1;
+      this.filledLabel.hidden = !this.hasMissing;
       this.note.textContent = this.describe();
       this.groupColors = s.labels.map(groupColor);
       const indices = s.point_indices || s.labels.map((_, position) => position);
@@ -218,6 +272,10 @@
         text += ` Showing ${formatCount(s.shown_points)} of ${formatCount(s.points)} points ` +
           "(a fixed random subset, the same in every frame)";
         text += s.faces === null ? "; the surface is not drawn for a subset." : ".";
+      }
+      if (this.hasMissing) {
+        text += ` ${(100 * s.observed_fraction).toFixed(1)} % of the points were observed; ` +
+          "the others are filled in by the solver (dimmed unless chosen otherwise).";
       }
       return text;
     }
@@ -275,17 +333,13 @@
       }
     }
 
-    trace(data) {
+    /** The plotly traces of one frame: observed points first, then the filled-in ones. */
+    traces(data) {
       const s = this.summary;
       const mode = this.colorSelect.value || "group";
-      const common = {
-        x: data.x,
-        y: data.y,
-        z: data.z,
-        customdata: this.hoverData,
-        hovertemplate: "point %{customdata[0]}, group %{customdata[1]}<br>" +
-          "x %{x:.4g}, y %{y:.4g}, z %{z:.4g}<extra></extra>",
-      };
+      const filledMode = this.hasMissing ? this.filledSelect.value || "dim" : "same";
+      const { observed, filled } = splitObserved(data.x.length, data.unobserved);
+      const filledSet = new Set(filled);
       const depthScale = {
         colorscale: "Viridis",
         cmin: s.ranges.depth[0],
@@ -293,26 +347,66 @@
         showscale: true,
         colorbar: { title: { text: "depth" }, thickness: 14, len: 0.6 },
       };
-      const colors = mode === "input" ? s.colors : this.groupColors;
+      const baseColors = mode === "input" ? s.colors : this.groupColors;
+      const hover = "point %{customdata[0]}, group %{customdata[1]}%{customdata[2]}<br>" +
+        "x %{x:.4g}, y %{y:.4g}, z %{z:.4g}<extra></extra>";
+      const customdata = this.hoverData.map(
+        (row, position) => [...row, filledSet.has(position) ? " (filled in)" : ""],
+      );
       if (s.faces && this.styleSelect.value === "mesh") {
+        let faces = s.faces;
+        if (filledMode === "hide") {
+          faces = faces.filter((face) => !face.some((vertex) => filledSet.has(vertex)));
+        }
         const mesh = {
-          ...common,
+          x: data.x,
+          y: data.y,
+          z: data.z,
+          customdata,
+          hovertemplate: hover,
           type: "mesh3d",
-          i: s.faces.map((face) => face[0]),
-          j: s.faces.map((face) => face[1]),
-          k: s.faces.map((face) => face[2]),
+          i: faces.map((face) => face[0]),
+          j: faces.map((face) => face[1]),
+          k: faces.map((face) => face[2]),
           flatshading: false,
         };
         if (mode === "depth") {
-          return { ...mesh, intensity: data.depth, ...depthScale };
+          return [{ ...mesh, intensity: data.depth, ...depthScale }];
         }
-        return { ...mesh, vertexcolor: colors };
+        const colors = filledMode === "dim"
+          ? baseColors.map((color, position) =>
+            (filledSet.has(position) ? fade(color, FILLED_FADE) : color))
+          : baseColors;
+        return [{ ...mesh, vertexcolor: colors }];
       }
       const size = Math.max(1.5, Math.min(5, 7 - 1.2 * Math.log10(s.shown_points)));
-      const marker = mode === "depth"
-        ? { size, color: data.depth, ...depthScale }
-        : { size, color: colors };
-      return { ...common, type: "scatter3d", mode: "markers", marker };
+      const points = (positions) => {
+        const pick = (values) => positions.map((position) => values[position]);
+        const marker = mode === "depth"
+          ? { size, color: pick(data.depth), ...depthScale }
+          : { size, color: pick(baseColors) };
+        return {
+          x: pick(data.x),
+          y: pick(data.y),
+          z: pick(data.z),
+          customdata: pick(customdata),
+          hovertemplate: hover,
+          type: "scatter3d",
+          mode: "markers",
+          marker,
+        };
+      };
+      if (filled.length === 0 || filledMode === "same") {
+        return [points(observed.concat(filled).sort((a, b) => a - b))];
+      }
+      const traces = [points(observed)];
+      if (filledMode === "dim") {
+        const dimmed = points(filled);
+        dimmed.opacity = FILLED_OPACITY;
+        dimmed.marker = { ...dimmed.marker, showscale: false };
+        traces.push(dimmed);
+      }
+      return traces;
     }
 
     /**
@@ -374,7 +468,7 @@
     }
 
     async draw(data) {
-      await Plotly.react(this.scene, [this.trace(data)], this.layout(), {
+      await Plotly.react(this.scene, this.traces(data), this.layout(), {
         responsive: true,
         displaylogo: false,
       });
@@ -456,5 +550,7 @@
     }
   }
 
-  global.MojuViewer = { Viewer, httpSource, embeddedSource, groupColor, element };
+  global.MojuViewer = {
+    Viewer, httpSource, embeddedSource, groupColor, element, splitObserved, fade,
+  };
 })(window);

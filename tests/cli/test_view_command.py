@@ -11,6 +11,7 @@ import re
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 from plotly.offline import get_plotlyjs
@@ -121,3 +122,34 @@ def test_embedded_data_cannot_close_its_script_element() -> None:
     page = standalone_html(document, title="<b>t</b>", subtitle="s")
     assert embedded_document(page) == document
     assert "<title>&lt;b&gt;t&lt;/b&gt;</title>" in page
+
+
+def test_filled_in_points_are_marked_in_the_page(files, tmp_path: Path) -> None:
+    from moju_core.io import read_result
+    from moju_core.result import Result
+
+    stored = read_result(files["result"])
+    visibility = np.ones((10, 300), dtype=bool)
+    visibility[2, 5:9] = False
+    occluded = Result(
+        shapes=stored.shapes,
+        rotations=stored.rotations,
+        labels=stored.labels,
+        history=stored.history,
+        timings=stored.timings,
+        params=SolverParams(**stored.params),
+        n_iter=stored.n_iter,
+        stop_reason=stored.stop_reason,
+        scale=stored.scale,
+        visibility=visibility,
+    )
+    result_path = write_result(tmp_path / "occluded.h5", occluded)
+    output = tmp_path / "occluded.html"
+    run = CliRunner().invoke(cli, ["view", str(result_path), "-o", str(output)])
+    assert run.exit_code == 0, run.output
+    page = output.read_text()
+    document = embedded_document(page)
+    assert document["frames"][2]["unobserved"] == [5, 6, 7, 8]
+    assert document["frames"][3]["unobserved"] == []
+    assert document["summary"]["observed_fraction"] == pytest.approx(1 - 4 / 3000)
+    assert "10 frames x 300 points, 99.9 % observed," in page

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -51,8 +52,8 @@ def full() -> Measurements:
 
 
 def assert_same_measurements(actual: Measurements, expected: Measurements) -> None:
-    assert_array_equal(actual.W, expected.W)
-    for name in ("rotations", "ground_truth", "faces", "colors"):
+    assert_array_equal(actual.W, expected.W)  # NaN at the same places counts as equal
+    for name in ("visibility", "rotations", "ground_truth", "faces", "colors"):
         got, want = getattr(actual, name), getattr(expected, name)
         if want is None:
             assert got is None, name
@@ -106,6 +107,109 @@ def test_csv_round_trip_through_write_measurements(tmp_path, full):
     path = write_measurements(tmp_path / "input.csv", only_tracks)
     assert path.read_text().startswith("frame,point,x,y\n")
     assert_same_measurements(read_measurements(path), only_tracks)
+
+
+def missing_visibility() -> np.ndarray:
+    """A (4, 6) mask with 5 unobserved entries; every point in >= 2 frames, every frame >= 3."""
+    visibility = np.ones((N_FRAMES, N_POINTS), dtype=bool)
+    visibility[0, 1] = visibility[1, 2] = visibility[1, 3] = visibility[2, 5] = False
+    visibility[3, 0] = False
+    return visibility
+
+
+@pytest.fixture
+def occluded(full) -> Measurements:
+    """``full`` with the points of missing_visibility() not observed (NaN in W)."""
+    visibility = missing_visibility()
+    W = full.W.copy()
+    W[np.repeat(~visibility, 2, axis=0)] = np.nan
+    return Measurements(
+        W=W,
+        rotations=full.rotations,
+        ground_truth=full.ground_truth,
+        faces=full.faces,
+        colors=full.colors,
+    )
+
+
+def test_measurements_derive_the_visibility_from_nan(occluded):
+    assert_array_equal(occluded.visibility, missing_visibility())
+    assert np.isnan(occluded.W[np.repeat(~missing_visibility(), 2, axis=0)]).all()
+    assert occluded.observed_fraction == pytest.approx(19 / 24)
+
+
+def test_complete_measurements_have_no_visibility(full):
+    assert full.visibility is None and full.observed_fraction == 1.0
+    # An all-True mask says nothing the data do not: it is dropped.
+    again = Measurements(W=full.W, visibility=np.ones((N_FRAMES, N_POINTS), dtype=bool))
+    assert again.visibility is None
+    assert_array_equal(again.W, full.W)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5", ".csv"])
+def test_nan_and_visibility_round_trip(tmp_path, occluded, suffix):
+    expected = occluded if suffix != ".csv" else Measurements(W=occluded.W)
+    path = write_measurements(tmp_path / f"occluded{suffix}", expected)
+    read = read_measurements(path)
+    assert_same_measurements(read, expected)
+    assert_array_equal(read.visibility, missing_visibility())
+    if suffix == ".csv":  # one row per observed pair, none for the others
+        assert len(path.read_text().splitlines()) == 1 + int(missing_visibility().sum())
+    else:
+        with np.load(path) if suffix == ".npz" else h5py.File(path, "r") as stored:
+            assert stored["visibility"].dtype == bool
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_visibility_with_tracks_is_read(tmp_path, occluded, suffix):
+    tracks = W_to_tracks(occluded.W)
+    path = tmp_path / f"tracks{suffix}"
+    arrays = {"tracks": tracks, "visibility": missing_visibility().astype(np.uint8)}
+    if suffix == ".npz":
+        np.savez(path, **arrays)
+    else:
+        with h5py.File(path, "w") as h5:
+            for name, value in arrays.items():
+                h5[name] = value
+    read = read_measurements(path)
+    assert_array_equal(read.visibility, missing_visibility())
+    assert_array_equal(read.W, occluded.W)
+
+
+def test_disagreeing_visibility_is_refused(tmp_path, full):
+    visibility = missing_visibility()
+    np.savez(tmp_path / "disagree.npz", W=full.W, visibility=visibility)  # W has no NaN
+    with pytest.raises(MeasurementError, match="W and visibility disagree at 5") as error:
+        read_measurements(tmp_path / "disagree.npz")
+    assert "frame 0, point 1: visibility says it is not observed" in str(error.value)
+    W = full.W.copy()
+    W[np.repeat(~visibility, 2, axis=0)] = np.nan
+    W[2:4, 0] = np.nan  # frame 1, point 0: observed according to visibility
+    np.savez(tmp_path / "disagree2.npz", W=W, visibility=visibility)
+    with pytest.raises(MeasurementError, match="frame 1, point 0: visibility says it is "):
+        read_measurements(tmp_path / "disagree2.npz")
+
+
+@pytest.mark.parametrize(
+    ("visibility", "fragment"),
+    [
+        (np.ones((N_FRAMES, N_POINTS - 1), dtype=bool), r"visibility has shape \(4, 5\)"),
+        (np.full((N_FRAMES, N_POINTS), 2), "values from 2 to 2"),
+        (np.ones((N_FRAMES, N_POINTS)), "visibility holds floating-point numbers"),
+    ],
+)
+def test_bad_visibility_dataset_is_refused(tmp_path, full, visibility, fragment):
+    np.savez(tmp_path / "bad.npz", W=full.W, visibility=visibility)
+    with pytest.raises(MeasurementError, match=fragment):
+        read_measurements(tmp_path / "bad.npz")
+
+
+def test_point_observed_in_one_frame_is_refused(tmp_path, full):
+    W = full.W.copy()
+    W[2:, 4] = np.nan  # point 4 only in frame 0
+    np.savez(tmp_path / "one.npz", W=W)
+    with pytest.raises(MeasurementError, match=r"1 point\(s\) are observed .*point\(s\) 4\."):
+        read_measurements(tmp_path / "one.npz")
 
 
 def test_csv_writer_refuses_to_drop_optional_datasets(tmp_path, full):
@@ -281,7 +385,7 @@ def test_nan_in_npz_is_located(tmp_path, full):
     W = full.W.copy()
     W[5, 3] = np.nan
     np.savez(tmp_path / "nan.npz", W=W)
-    with pytest.raises(MeasurementError, match="1 NaN.*y of frame 2, point 3"):
+    with pytest.raises(MeasurementError, match="one coordinate NaN.*y of frame 2, point 3"):
         read_measurements(tmp_path / "nan.npz")
 
 
@@ -511,18 +615,39 @@ def test_csv_short_row_names_the_line(full):
     assert "line 4 of the uploaded file has 2 column(s)" in csv_error("\n".join(lines))
 
 
-def test_csv_missing_pair_is_listed(full):
+def test_csv_missing_row_is_an_unobserved_point(full):
     lines = csv_text(full.W).splitlines()
     del lines[1 + N_POINTS + 2]  # frame 1, point 2
-    message = csv_error("\n".join(lines))
-    assert "1 missing, e.g. (frame 1, point 2)" in message
+    read = read_measurements(io.BytesIO("\n".join(lines).encode()), format="csv")
+    expected = np.ones((N_FRAMES, N_POINTS), dtype=bool)
+    expected[1, 2] = False
+    assert_array_equal(read.visibility, expected)
+    assert np.isnan(read.W[2:4, 2]).all()
+    assert_array_equal(read.W[np.repeat(expected, 2, axis=0)], full.W[np.repeat(expected, 2, 0)])
+    assert read.observed_fraction == pytest.approx(1 - 1 / (N_FRAMES * N_POINTS))
+
+
+def test_csv_row_of_nan_is_an_unobserved_point(full):
+    lines = csv_text(full.W).splitlines()
+    lines[1 + N_POINTS + 2] = "1,2,nan,nan"
+    read = read_measurements(io.BytesIO("\n".join(lines).encode()), format="csv")
+    assert not read.visibility[1, 2] and read.visibility.sum() == N_FRAMES * N_POINTS - 1
+
+
+def test_csv_point_in_one_frame_only_is_refused(full):
+    lines = csv_text(full.W).splitlines()
+    # Point 4 keeps only its row of frame 0.
+    kept = [line for line in lines if not (line.split(",")[1] == "4" and line[0] != "0")]
+    message = csv_error("\n".join(kept))
+    assert "1 point(s) are observed (not NaN) in fewer than 2 frames: point(s) 4" in message
+    assert "drop these points" in message
 
 
 def test_csv_duplicated_pair_is_listed(full):
     lines = csv_text(full.W).splitlines()
     lines.append(lines[1 + 2 * N_POINTS + 4])  # frame 2, point 4 again
     message = csv_error("\n".join(lines))
-    assert "1 repeated, e.g. (frame 2, point 4)" in message
+    assert "1 are repeated, e.g. (frame 2, point 4)" in message
 
 
 def test_csv_indices_must_be_whole_numbers_in_range(full):
@@ -542,9 +667,9 @@ def test_csv_stray_large_index_does_not_allocate_frames_times_points():
     text = "frame,point,x,y\n" + "".join(
         f"{f},{p},0,0\n" for f, p in zip(frames, points, strict=True)
     )
+    # Refused from the rows alone (each frame sees 2 points), before a 1000 x 2000 W exists.
     message = csv_error(text)
-    assert "1000 frames x 2000 points" in message
-    assert f"{1000 * 2000 - n_rows} missing" in message
+    assert "1998 point(s) are observed (not NaN) in fewer than 2 frames" in message
 
 
 def test_csv_empty_and_header_only():
@@ -655,6 +780,32 @@ def test_result_round_trip(tmp_path, result, suffix):
     assert loaded.metadata == {"job_id": "abc", "input": "face.npz", "n_points": 6}
     assert (loaded.n_frames, loaded.n_points) == (N_FRAMES, N_POINTS)
     assert [p.name for p in tmp_path.iterdir()] == [f"result{suffix}"]
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_result_visibility_round_trip(tmp_path, result, suffix):
+    visibility = missing_visibility()
+    with_mask = dataclasses.replace(result, visibility=visibility)
+    loaded = read_result(write_result(tmp_path / f"occluded{suffix}", with_mask))
+    assert loaded.visibility.dtype == bool
+    assert_array_equal(loaded.visibility, visibility)
+    # A result without a mask solved complete data: the file says every entry was observed.
+    complete = read_result(write_result(tmp_path / f"complete{suffix}", result))
+    assert complete.visibility.all() and complete.visibility.shape == (N_FRAMES, N_POINTS)
+
+
+def test_result_visibility_must_match_the_shapes(tmp_path, result):
+    wrong = dataclasses.replace(result, visibility=np.ones((N_FRAMES, N_POINTS - 1), dtype=bool))
+    with pytest.raises(ValueError, match=r"result.visibility \(4, 5\) does not match"):
+        write_result(tmp_path / "wrong.npz", wrong)
+    assert not any(tmp_path.iterdir())
+
+
+def test_result_file_without_visibility_reads_as_none(tmp_path, result):
+    path = write_result(tmp_path / "old.h5", result)
+    with h5py.File(path, "a") as h5:
+        del h5["visibility"]  # as written before the dataset existed
+    assert read_result(path).visibility is None
 
 
 def test_npz_result_loads_without_pickles(tmp_path, result):

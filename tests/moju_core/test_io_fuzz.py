@@ -1,7 +1,8 @@
 """Property-based tests of the file readers against hostile bytes (the service's uploads).
 
 Whatever the bytes, :func:`moju_core.io.read_measurements` either returns measurements that
-satisfy the contract (finite float64 W of shape 2F x P, F >= 2, P >= 3, within the limits)
+satisfy the contract (float64 W of shape 2F x P, F >= 2, P >= 3, within the limits, NaN
+only at the unobserved entries of its visibility)
 or raises :class:`~moju_core.errors.MeasurementError`: never another exception, which the
 API would turn into a 500.
 """
@@ -43,7 +44,16 @@ def _read(data: bytes, file_format: str | None, **limits: int) -> Measurements |
 def _check_contract(m: Measurements, max_frames: int | None = None, max_points=None) -> None:
     assert m.W.dtype == np.float64 and m.W.ndim == 2 and m.W.shape[0] % 2 == 0
     assert m.n_frames >= 2 and m.n_points >= 3
-    assert np.isfinite(m.W).all()
+    assert not np.isinf(m.W).any()
+    # NaN (x and y together) exactly at the unobserved entries; a mask only when one is.
+    observed = np.isfinite(m.W).reshape(m.n_frames, 2, m.n_points).all(axis=1)
+    assert_array_equal(np.isnan(m.W), np.repeat(~observed, 2, axis=0))
+    if m.visibility is None:
+        assert observed.all()
+    else:
+        assert_array_equal(m.visibility, observed)
+        assert not observed.all()
+        assert (observed.sum(axis=0) >= 2).all() and (observed.sum(axis=1) >= 3).all()
     if max_frames is not None:
         assert m.n_frames <= max_frames
     if max_points is not None:
@@ -70,12 +80,14 @@ def _h5_bytes(**arrays_: np.ndarray) -> bytes:
 
 
 def _csv_bytes(W: np.ndarray) -> bytes:
+    """Long-format CSV of W; entries with x and y both NaN get no row (unobserved)."""
     n_frames, n_points = W.shape[0] // 2, W.shape[1]
     rows = ["frame,point,x,y"]
     for frame in range(n_frames):
         for point in range(n_points):
             x, y = float(W[2 * frame, point]), float(W[2 * frame + 1, point])
-            rows.append(f"{frame},{point},{x!r},{y!r}")
+            if not (np.isnan(x) and np.isnan(y)):
+                rows.append(f"{frame},{point},{x!r},{y!r}")
     return ("\n".join(rows) + "\n").encode()
 
 
@@ -207,3 +219,36 @@ def test_the_valid_base_files_are_valid(file_format: str) -> None:
     """The corruption test starts from files that are read correctly."""
     read = _read(VALID[file_format], file_format)
     assert read is not None and read.W.shape == (8, 12)
+
+
+@FEWER
+@given(
+    W=arrays(
+        np.float64,
+        st.tuples(st.integers(2, 6).map(lambda f: 2 * f), st.integers(3, 8)),
+        elements=st.floats(allow_nan=False, allow_infinity=False, width=64),
+    ),
+    data=st.data(),
+)
+def test_missing_points_survive_every_format_or_are_refused(W: np.ndarray, data) -> None:
+    """Random entries unobserved (NaN): each format reads the same W and visibility, or all
+    three refuse (too few observations), and the observed values keep every bit."""
+    n_frames, n_points = W.shape[0] // 2, W.shape[1]
+    hidden = data.draw(arrays(np.bool_, (n_frames, n_points)))
+    W = W.copy()
+    W[np.repeat(hidden, 2, axis=0)] = np.nan
+    outcomes = []
+    for raw, file_format in ((_npz_bytes(W=W), "npz"), (_h5_bytes(W=W), "h5"),
+                             (_csv_bytes(W), "csv")):  # fmt: skip
+        outcomes.append(_read(raw, file_format))
+    if outcomes[0] is None:
+        assert all(outcome is None for outcome in outcomes)
+        observed = ~hidden
+        assert (observed.sum(axis=0) < 2).any() or (observed.sum(axis=1) < 3).any()
+        return
+    for read in outcomes:
+        assert read.W.tobytes() == W.tobytes()  # NaN at the same places, the rest bit for bit
+        if hidden.any():
+            assert_array_equal(read.visibility, ~hidden)
+        else:
+            assert read.visibility is None

@@ -11,6 +11,7 @@ from moju_core.metrics import (
     align,
     center_frames,
     e3d,
+    e3d_occluded,
     evaluate,
     rigid_approximation,
     rotation_error_deg,
@@ -238,3 +239,72 @@ def test_degenerate_truth_frame_is_rejected() -> None:
     truth[1] = 1.0
     with pytest.raises(ValueError, match="single point"):
         e3d(truth, truth)
+
+
+# --- occluded entries -----------------------------------------------------------------------
+
+
+def occluded_example() -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """Truth, an estimate wrong only at frame 0's occluded points 2 and 3 (by +v and -v, so
+    the frame's centroid stays), a visibility, and the hand-computed occluded and overall e3D."""
+    truth = random_shapes(60, n_frames=3, n_points=10)
+    visibility = np.ones((3, 10), dtype=bool)
+    visibility[0, [2, 3]] = False  # wrong in the estimate
+    visibility[1, 5] = False  # filled in exactly
+    estimate = truth.copy()
+    v = np.array([0.3, -0.2, 0.1])
+    estimate[0, 2] += v
+    estimate[0, 3] -= v
+    centred = center_frames(truth)
+    wrong = np.sqrt(2.0) * np.linalg.norm(v)
+    occluded = (wrong / np.linalg.norm(centred[0, [2, 3]]) + 0.0) / 2  # frame 2 is skipped
+    overall = (wrong / np.linalg.norm(centred[0])) / 3
+    return truth, estimate, visibility, occluded, overall
+
+
+def test_e3d_occluded_of_a_constructed_example() -> None:
+    truth, estimate, visibility, occluded, overall = occluded_example()
+    assert_allclose(e3d_occluded(estimate, truth, visibility, "sign"), occluded, rtol=1e-12)
+    assert_allclose(e3d(estimate, truth, "sign"), overall, rtol=1e-12)
+    # Errors at observed entries are not counted: frame 2 has no occluded point, frame 1's
+    # observed points 0 and 1 move without moving the centroid.
+    elsewhere = estimate.copy()
+    elsewhere[2] *= 1.5
+    elsewhere[1, 0] += [0.2, 0.0, 0.0]
+    elsewhere[1, 1] -= [0.2, 0.0, 0.0]
+    assert_allclose(e3d_occluded(elsewhere, truth, visibility, "sign"), occluded, rtol=1e-12)
+    assert e3d(elsewhere, truth, "sign") > overall
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_e3d_occluded_forgives_what_the_alignment_forgives(mode: str) -> None:
+    truth, _, visibility, _, _ = occluded_example()
+    Q = random_orthogonal(61, 1, reflect=False)[0] if mode != "sign" else MIRROR_Z
+    assert e3d_occluded(truth @ Q + 2.0, truth, visibility, mode) < 1e-12
+
+
+def test_evaluate_reports_the_occluded_error_when_something_is_occluded() -> None:
+    truth, estimate, visibility, occluded, overall = occluded_example()
+    scores = evaluate(estimate, truth, visibility=visibility)
+    assert set(scores) == {
+        "e3d_procrustes", "e3d_global", "e3d_sign", "e3d_occluded_procrustes",
+        "e3d_occluded_global", "e3d_occluded_sign", "observed_fraction",
+    }  # fmt: skip
+    assert_allclose(scores["e3d_occluded_sign"], occluded, rtol=1e-12)
+    assert_allclose(scores["e3d_sign"], overall, rtol=1e-12)
+    assert scores["observed_fraction"] == pytest.approx(27 / 30)
+    for mode in MODES:
+        assert scores[f"e3d_occluded_{mode}"] == e3d_occluded(estimate, truth, visibility, mode)
+        assert scores[f"e3d_{mode}"] == e3d(estimate, truth, mode)
+    complete = evaluate(estimate, truth, visibility=np.ones_like(visibility))
+    assert complete == evaluate(estimate, truth)
+
+
+def test_e3d_occluded_refuses_unusable_masks() -> None:
+    truth, estimate, visibility, _, _ = occluded_example()
+    with pytest.raises(ValueError, match="nothing is occluded"):
+        e3d_occluded(estimate, truth, np.ones_like(visibility))
+    with pytest.raises(ValueError, match=r"shape \(F, P\) = \(3, 10\)"):
+        e3d_occluded(estimate, truth, visibility[:, :9])
+    with pytest.raises(ValueError, match="bool"):
+        e3d_occluded(estimate, truth, visibility.astype(int))

@@ -14,9 +14,11 @@ from moju_core.validation import (
     check_faces,
     check_ground_truth,
     check_measurements,
+    check_observations,
     check_rotations,
     estimate_memory_bytes,
     tracks_to_W,
+    with_missing,
 )
 
 
@@ -266,3 +268,108 @@ def test_estimate_memory_bytes_follows_the_documented_formula():
 def test_estimate_memory_bytes_rejects_negative_sizes():
     with pytest.raises(ValueError, match="n_frames=-1"):
         estimate_memory_bytes(-1, 10)
+
+
+# ---------------------------------------------------------------------------------------------
+# check_observations
+
+
+def occluded_W(n_frames: int = 5, n_points: int = 8, seed: int = 1) -> tuple[np.ndarray, ...]:
+    """Random W with NaN at a few entries, and the matching visibility."""
+    W = np.random.default_rng(seed).normal(size=(2 * n_frames, n_points))
+    visibility = np.ones((n_frames, n_points), dtype=bool)
+    visibility[0, 1] = visibility[2, 3] = visibility[2, 4] = visibility[4, 7] = False
+    return with_missing(W, visibility), visibility
+
+
+@pytest.mark.parametrize(
+    "W",
+    [
+        np.arange(24, dtype=np.int32).reshape(4, 6),
+        np.random.default_rng(2).normal(size=(6, 5)),
+        np.asfortranarray(np.random.default_rng(3).normal(size=(6, 5))),
+    ],
+)
+def test_check_observations_of_complete_data_is_check_measurements(W):
+    filled, visibility = check_observations(W)
+    expected = check_measurements(W)
+    assert filled.dtype == expected.dtype and filled.flags.c_contiguous
+    assert filled.tobytes() == expected.tobytes()
+    assert visibility.shape == (W.shape[0] // 2, W.shape[1]) and visibility.all()
+    if W.dtype == np.float64 and W.flags.c_contiguous:
+        assert filled is W  # no copy, as check_measurements
+    # An all-True mask changes nothing.
+    again, _ = check_observations(W, np.ones_like(visibility))
+    assert again.tobytes() == expected.tobytes()
+
+
+def test_check_observations_fills_zeros_and_leaves_the_input_alone():
+    W, expected = occluded_W()
+    before = W.copy()
+    filled, visibility = check_observations(W)
+    assert_array_equal(visibility, expected)
+    assert visibility.dtype == bool
+    rows = np.repeat(expected, 2, axis=0)
+    assert (filled[~rows] == 0.0).all() and np.isfinite(filled).all()
+    assert_array_equal(filled[rows], W[rows])
+    assert_array_equal(W, before)  # NaN still there
+    # The same with the mask given: it agrees with the NaN.
+    given, from_mask = check_observations(W, expected.astype(np.int8))
+    assert_array_equal(given, filled) and from_mask.dtype == bool
+
+
+def test_check_observations_refuses_a_disagreeing_visibility():
+    W, visibility = occluded_W()
+    wrong = visibility.copy()
+    wrong[1, 1] = False  # W has a value there
+    with pytest.raises(MeasurementError, match=r"disagree at 1 .*frame 1, point 1: visibility "
+                       r"says it is not observed but W holds a value"):
+        check_observations(W, wrong)
+    wrong = visibility.copy()
+    wrong[0, 1] = True  # W is NaN there
+    with pytest.raises(MeasurementError, match="frame 0, point 1: visibility says it is observed"):
+        check_observations(W, wrong)
+
+
+def test_check_observations_refuses_nan_in_one_coordinate():
+    W, _ = occluded_W()
+    W[5, 0] = np.nan  # y of frame 2, point 0, its x stays
+    with pytest.raises(MeasurementError, match="y of frame 2, point 0 .NaN while its x is not"):
+        check_observations(W)
+
+
+def test_check_observations_refuses_infinite_values():
+    W, _ = occluded_W()
+    W[6, 2] = -np.inf
+    with pytest.raises(MeasurementError, match="1 infinite value.*x of frame 3, point 2.*never"):
+        check_observations(W)
+
+
+def test_check_observations_refuses_a_point_seen_in_one_frame():
+    W, _ = occluded_W()
+    W[2:, 5] = np.nan  # point 5: frame 0 only
+    W[:8, 6] = np.nan  # point 6: frame 4 only
+    with pytest.raises(MeasurementError) as error:
+        check_observations(W)
+    message = str(error.value)
+    assert "2 point(s) are observed (not NaN) in fewer than 2 frames: point(s) 5, 6." in message
+    assert "drop these points" in message
+
+
+def test_check_observations_refuses_a_frame_with_too_few_points():
+    W, _ = occluded_W()
+    W[2:4, :6] = np.nan  # frame 1 keeps points 6 and 7 only
+    with pytest.raises(MeasurementError) as error:
+        check_observations(W)
+    message = str(error.value)
+    assert "1 frame(s) observe (not NaN) fewer than 3 points: frame(s) 1, with 2 " in message
+    assert "drop these frames" in message
+
+
+def test_check_observations_keeps_the_layout_checks():
+    with pytest.raises(MeasurementError, match="even number"):
+        check_observations(np.zeros((5, 4)))
+    with pytest.raises(MeasurementError, match="visibility has shape"):
+        check_observations(np.zeros((4, 4)), np.ones((2, 3), dtype=bool))
+    with pytest.raises(MeasurementError, match="visibility holds floating-point"):
+        check_observations(np.zeros((4, 4)), np.ones((2, 4)))

@@ -106,3 +106,31 @@ def test_open_result_reads_hdf5_lazily_and_npz_alike(result, tmp_path) -> None:
     with pytest.raises(ValueError, match="tracks.h5 is not a readable MoJu result file"):
         with open_result(not_a_result):
             pass
+
+
+def test_frames_list_the_points_the_solver_filled_in(result, tmp_path) -> None:
+    visibility = np.ones((10, 300), dtype=bool)
+    visibility[4, [3, 50, 299]] = False
+    visibility[7, 10:20] = False
+    occluded = dataclasses.replace(result, visibility=visibility)
+    view = ResultView.of(occluded)
+    everything = shown_points(300, 300)
+    assert frame_data(view, 4, everything)["unobserved"] == [3, 50, 299]
+    assert frame_data(view, 7, everything)["unobserved"] == list(range(10, 20))
+    assert frame_data(view, 0, everything)["unobserved"] == []
+    # Positions in the shown subset, not point numbers.
+    subset = np.array([0, 3, 9, 299])
+    assert frame_data(view, 4, subset)["unobserved"] == [1, 3]
+    assert summary(view, everything)["observed_fraction"] == pytest.approx(1 - 13 / 3000)
+    # The same through a stored file, read lazily from HDF5.
+    with open_result(write_result(tmp_path / "occluded.h5", occluded)) as lazy:
+        assert isinstance(lazy.visibility, h5py.Dataset)
+        document = viewer_document(lazy)
+    assert document["frames"][7]["unobserved"] == list(range(10, 20))
+    assert document["summary"]["observed_fraction"] == pytest.approx(1 - 13 / 3000)
+
+
+def test_complete_results_have_nothing_filled_in(result) -> None:
+    document = viewer_document(ResultView.of(result), max_points=50)
+    assert document["summary"]["observed_fraction"] == 1.0
+    assert all(frame["unobserved"] == [] for frame in document["frames"])

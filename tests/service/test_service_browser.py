@@ -335,6 +335,34 @@ def test_standalone_file_of_moju_view(watched: Watched, small_sequence, tmp_path
     assert watched.foreign_requests == []
 
 
+def test_standalone_viewer_dims_or_hides_filled_in_points(
+    watched: Watched, small_sequence, tmp_path: Path
+) -> None:
+    """Points a frame did not observe are a second, fainter trace; "hidden" drops them."""
+    result = reconstruct(small_sequence.W, SolverParams(max_iter=5))
+    result.visibility = np.ones((10, 300), dtype=bool)
+    result.visibility[0, :40] = False
+    result_path = write_result(tmp_path / "occluded.h5", result)
+    output = tmp_path / "occluded.html"
+    run = CliRunner().invoke(cli, ["view", str(result_path), "-o", str(output)])
+    assert run.exit_code == 0, run.output
+
+    page = watched.page
+    page.goto(output.as_uri())
+    page.wait_for_selector('#viewer-container[data-rendered-frame="0"]')
+    traces = "document.querySelector('#viewer-container .moju-scene').data"
+    drawn = page.evaluate(f"{traces}.map(t => [t.x.length, t.opacity ?? 1])")
+    assert drawn == [[260, 1], [40, 0.3]]
+    assert page.locator("#viewer-container .moju-filled").is_visible()
+    page.select_option("#viewer-container .moju-filled", "hide")
+    page.wait_for_function(f"{traces}.length === 1")
+    assert page.evaluate(f"{traces}[0].x.length") == 260
+    page.select_option("#viewer-container .moju-filled", "same")
+    page.wait_for_function(f"{traces}.length === 1 && {traces}[0].x.length === 300")
+    assert watched.console_errors == []
+    assert watched.foreign_requests == []
+
+
 def test_the_page_works_with_an_api_key(
     watched: Watched, settings, input_file: Path, tmp_path: Path
 ) -> None:

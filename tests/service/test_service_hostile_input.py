@@ -94,8 +94,9 @@ def _tracks_csv(n_frames: int = 3, n_points: int = 4, broken: str | None = None)
             lines.append(f"{frame},{point},{point + 0.1 * frame},{point * point - frame}")
     if broken == "cell":
         lines[2] = "0,1,abc,2.0"
-    elif broken == "missing row":
-        del lines[5]
+    elif broken == "lonely point":  # point 3 keeps only its row of frame 0
+        lines = [line for line in lines if not line.endswith(tuple(
+            f",3,{3 + 0.1 * frame},{9 - frame}" for frame in (1, 2)))]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -199,10 +200,10 @@ CASES: list[tuple[str, Callable[[], dict], int, tuple[str, ...]]] = [
         ("line 3", "'abc' is not a number"),
     ),
     (
-        "CSV missing a row",
-        lambda: _file(_csv(_tracks_csv(broken="missing row")), "t.csv"),
+        "CSV with a point in one frame only",
+        lambda: _file(_csv(_tracks_csv(broken="lonely point")), "t.csv"),
         422,
-        ("missing",),
+        ("in fewer than 2 frames: point(s) 3", "drop these points"),
     ),
     (
         "CSV that is binary junk",
@@ -215,7 +216,7 @@ CASES: list[tuple[str, Callable[[], dict], int, tuple[str, ...]]] = [
         "NaN in W",
         lambda: _file(_npz(W=_with_nan(GOOD_W, np.nan))),
         422,
-        ("1 NaN", "frame 2, point 7"),
+        ("one coordinate NaN", "frame 2, point 7"),
     ),
     (
         "infinity in W",

@@ -51,6 +51,7 @@ def test_npz_upload_is_accepted_stored_and_queued(
         "has_ground_truth": True,
         "has_faces": True,
         "has_colors": True,
+        "observed_fraction": 1.0,
     }
     assert job["started_at"] is None and job["progress"] is None and job["error"] is None
     assert job["links"]["metrics"] == f"/v1/jobs/{job['id']}/metrics"
@@ -156,7 +157,9 @@ def test_non_finite_and_misshapen_tracks_are_refused(client: TestClient, tmp_pat
     np.savez(tmp_path / "nan.npz", W=W)
     response = upload(client, tmp_path / "nan.npz")
     assert response.status_code == 422
-    assert "NaN" in response.json()["detail"] and "frame 1, point 7" in response.json()["detail"]
+    # x NaN and y not: neither an observed nor an unobserved point.
+    assert "one coordinate NaN" in response.json()["detail"]
+    assert "frame 1, point 7" in response.json()["detail"]
 
     np.savez(tmp_path / "odd.npz", W=np.ones((7, 30)))
     response = upload(client, tmp_path / "odd.npz")

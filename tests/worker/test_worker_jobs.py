@@ -101,3 +101,38 @@ def test_worker_refuses_a_job_over_its_memory_limit(store, storage, settings, ad
         "per job (MOJU_WORKER_MEMORY_BYTES): subsample the points or frames"
     )
     assert not storage.has_result(job_id)
+
+
+def test_missing_points_reach_the_solver_and_the_stored_result(
+    store, storage, settings, add_job, face_W, monkeypatch
+):
+    import moju_core.solver
+    from moju_core.result import Result
+    from moju_core.validation import with_missing
+
+    visibility = np.ones((10, 300), dtype=bool)
+    visibility[3:6, :50] = False
+    calls = []
+
+    def solver(W, params, *, rotations=None, callback=None, visibility=None):
+        calls.append((W, visibility))
+        return Result(
+            shapes=np.zeros((10, 300, 3)),
+            rotations=np.tile(np.eye(3)[:2], (10, 1, 1)),
+            labels=np.zeros(300, dtype=np.int64),
+            history={},
+            timings={"total": 0.0},
+            params=params,
+            n_iter=0,
+            stop_reason="converged",
+            scale=1.0,
+            visibility=visibility,
+        )
+
+    monkeypatch.setattr(moju_core.solver, "reconstruct", solver)
+    job_id = add_job(with_missing(face_W, visibility))
+    assert execute(job_id, store, storage, settings)["status"] == "finished"
+    (W, given), = calls
+    np.testing.assert_array_equal(given, visibility)
+    assert np.isnan(W[6:12, :50]).all() and np.isfinite(W[:6]).all()
+    np.testing.assert_array_equal(storage.read_result(job_id).visibility, visibility)
