@@ -70,6 +70,7 @@ def run(
     features: np.ndarray | None = None,
     hook: IterationHook | None = None,
     refine_rotations: bool = False,
+    observed: np.ndarray | None = None,
 ) -> LoopOutput:
     """Run Algorithm 1 on scale-normalised, centred tracks with given rotations.
 
@@ -92,6 +93,9 @@ def run(
         iteration fits them to the current low-rank shapes ``S#``
         (:func:`moju_core.rotations.fit_rotations_to_shapes`), an alternating minimisation
         of the data term over R. For approximate rotations (the windowed estimate).
+    observed : ndarray of shape (F, P), bool, optional
+        Where the points are observed; the data term runs over these entries only (the
+        tracks' values elsewhere are not used). None: all observed.
 
     Returns
     -------
@@ -105,6 +109,13 @@ def run(
     # run; each group is still reconstructed on its own subspace (steps 2 and 9).
     adaptive = local and params.grouping == "adaptive"
 
+    # S = pinv(R) W, the zero-depth start: from the tracks as given, i.e. with the hidden
+    # entries of a masked input at their completion (moju_core.missing).
+    start = camera.back_project(rotations, tracks)
+    if observed is not None:
+        # The unobserved entries carry no data: zero there, so that the S-update's right-hand
+        # side uses the observed entries only.
+        tracks = np.where(observed[:, None, :], tracks, 0.0)
     back_projected = camera.back_project(rotations, tracks)
     normals = camera.viewing_directions(rotations)
     prior = (
@@ -115,7 +126,7 @@ def run(
     exact_prior = prior is not None and refine_rotations
     # The truncated nuclear norm: with free_mean_shape the top singular value is not shrunk.
     kept_values = 1 if params.free_mean_shape else 0
-    shapes = back_projected.copy()  # S = pinv(R) W
+    shapes = start  # S = pinv(R) W
     sharp = shapes.reshape(n_frames, 3 * n_points).copy()  # S# = f(S)
     # The multiplier L1 is stored scaled, ``scaled = L1 / rho``: both places it enters (the
     # S-update target ``S# + L1/rho`` and the S#-step input ``f(S) - L1/rho``) need it so, and
@@ -136,10 +147,14 @@ def run(
         labels = labels[order]
         back_projected = _permute(back_projected, order)
         tracks = _permute(tracks, order)
+        if observed is not None:
+            observed = _permute(observed, order)
         shapes = _permute(shapes, order)
         sharp = shapes.reshape(n_frames, 3 * n_points).copy()
         features = features[order]
     reprojection = np.empty_like(tracks)
+    n_observed = n_frames * n_points if observed is None else int(observed.sum())
+    frame_counts = None if observed is None else observed.sum(axis=1)[:, None].astype(float)
     n_groups = int(labels.max()) + 1
     bounds = _bounds(labels, n_groups)
     group_clusters = np.zeros(n_groups, dtype=np.int64)
@@ -177,14 +192,23 @@ def run(
         np.add(sharp, scaled, out=work)
         target = work.reshape(n_frames, 3, n_points)
         if exact_prior:
+            if observed is not None:
+                # The banded solve needs every entry: the unobserved ones take the current
+                # shapes' projection (a majoriser of the masked data term, camera.fill_unobserved).
+                filled = camera.fill_unobserved(rotations, tracks, shapes, observed)
+                back_projected = camera.back_project(rotations, filled)
             temporal_prior.smooth_data_step(back_projected, normals, target, rho, prior, shapes)
         else:
-            camera.data_step(back_projected, normals, target, rho, out=shapes)
+            camera.data_step(back_projected, normals, target, rho, out=shapes, observed=observed)
         if refine_rotations and iteration > 1 and rho < ROTATION_REFINE_RHO:
             # Alternate: the rotations that best project the current low-rank shapes.
-            rotations = fit_rotations_to_shapes(
-                rotations, tracks, sharp.reshape(n_frames, 3, n_points)
+            low_rank = sharp.reshape(n_frames, 3, n_points)
+            seen = (
+                tracks
+                if observed is None
+                else camera.fill_unobserved(rotations, tracks, low_rank, observed)
             )
+            rotations = fit_rotations_to_shapes(rotations, seen, low_rank)
             back_projected = camera.back_project(rotations, tracks)
             normals = camera.viewing_directions(rotations)
         trajectories = shapes.reshape(3 * n_frames, n_points)
@@ -227,6 +251,8 @@ def run(
                     order = order[perm]
                     back_projected = _permute(back_projected, perm)
                     tracks = _permute(tracks, perm)
+                    if observed is not None:
+                        observed = _permute(observed, perm)
                     features = features[perm]
                     shapes = _permute(shapes, perm)
                     sharp = _permute(sharp.reshape(n_frames, 3, n_points), perm).reshape(
@@ -248,6 +274,9 @@ def run(
         elif local:
             # 2 and 9 fused between regroupings: track each group's subspace, project on it.
             bases = grassmann.track_and_project(trajectories, bounds, bases)
+        if local and observed is not None:
+            # Hidden frames of a point follow its group's subspace (fitted on the seen ones).
+            grassmann.project_observed(trajectories, bounds, bases, observed)
         shape_form = shapes.reshape(n_frames, 3 * n_points)
         # 10. S#-update: singular value thresholding.
         np.subtract(shape_form, scaled, out=work)
@@ -276,12 +305,20 @@ def run(
         gap = max(gap_shape, gap_coef)
         camera.project(rotations, shapes, out=reprojection)
         reprojection -= tracks
+        if observed is not None:
+            reprojection *= observed[:, None, :]  # RMS over the observed entries below
+            # The per-frame translation is an unknown of the masked data term too: the mean
+            # residual of each frame's observed points is moved into it.
+            shift = reprojection.sum(axis=2) / frame_counts  # (F, 2), R S - W on average
+            tracks += shift[:, :, None] * observed[:, None, :]
+            reprojection -= shift[:, :, None] * observed[:, None, :]
+            back_projected = camera.back_project(rotations, tracks)
         history["gap"].append(gap)
         history["gap_shape"].append(gap_shape)
         history["gap_coefficients"].append(gap_coef)
         history["rho"].append(rho)
         history["reprojection"].append(
-            float(np.sqrt(np.vdot(reprojection, reprojection) / reprojection.size))
+            float(np.sqrt(np.vdot(reprojection, reprojection) / (2 * n_observed)))
         )
         history["nuclear_norm"].append(nuclear)
         history["relabelled"].append(float(relabelled))

@@ -58,6 +58,7 @@ def data_step(
     target: np.ndarray,
     rho: float,
     out: np.ndarray | None = None,
+    observed: np.ndarray | None = None,
 ) -> np.ndarray:
     """S-update (Algorithm 1, step 1): solve ``(R^T R + rho I) S = R^T W + rho T`` per frame.
 
@@ -78,6 +79,9 @@ def data_step(
         Penalty parameter, > 0.
     out : ndarray of shape (F, 3, P), optional
         Where to write the result (must not share memory with the inputs).
+    observed : ndarray of shape (F, P), bool, optional
+        Where the points are observed. An unobserved entry has no data term, so its solution
+        is the target itself (``rho S_f = rho T_f``); None means all are observed.
 
     Returns
     -------
@@ -89,4 +93,30 @@ def data_step(
     out = np.matmul(coupling, target, out=out)
     out += back_projected
     out *= 1.0 / (1.0 + rho)
+    if observed is not None:
+        np.copyto(out, target, where=~observed[:, None, :])
     return out
+
+
+def fill_unobserved(
+    rotations: np.ndarray, tracks: np.ndarray, shapes: np.ndarray, observed: np.ndarray
+) -> np.ndarray:
+    """Tracks with every unobserved entry replaced by the projection of the current shape.
+
+    A data term over the observed entries, ``sum_{observed} ||W_fj - R_f S_fj||^2``, is
+    majorised at the current S by the complete term of these filled tracks (equal at S,
+    larger elsewhere): steps that need complete tracks (the exact temporal-prior S-update,
+    the rotation refinement) take them and still decrease the masked objective.
+
+    Parameters
+    ----------
+    rotations : ndarray of shape (F, 2, 3)
+    tracks : ndarray of shape (F, 2, P)
+    shapes : ndarray of shape (F, 3, P)
+    observed : ndarray of shape (F, P), bool
+
+    Returns
+    -------
+    ndarray of shape (F, 2, P)
+    """
+    return np.where(observed[:, None, :], tracks, project(rotations, shapes))

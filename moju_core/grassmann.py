@@ -152,6 +152,46 @@ def project_groups(
     return out
 
 
+def project_observed(
+    trajectories: np.ndarray, bounds: np.ndarray, bases: np.ndarray, observed: np.ndarray
+) -> np.ndarray:
+    """Local reconstruction of points with unobserved frames, fitted on their observed frames.
+
+    For a point j of group i seen only in some frames, its trajectory in the group's span is
+    ``Phi_i c_j`` with ``c_j = argmin sum_{f observed} ||Phi_i,f c - s_j,f||^2`` (``Phi_i,f``
+    the 3 x p rows of frame f): the group's subspace, learnt from all its members, carries the
+    point through the frames where it is hidden. The orthogonal projection of
+    :func:`project_groups` would fit c to the hidden frames' current values too. Columns of
+    fully observed points are left as they are. O(F n p^2) per group, in place.
+
+    Parameters
+    ----------
+    trajectories : ndarray of shape (3F, P)
+        Modified in place.
+    bounds : ndarray of shape (K + 1,)
+    bases : ndarray of shape (K, 3F, p)
+    observed : ndarray of shape (F, P), bool
+    """
+    n_frames = observed.shape[0]
+    partial = ~observed.all(axis=0)
+    for i in range(len(bounds) - 1):
+        columns = bounds[i] + np.flatnonzero(partial[bounds[i] : bounds[i + 1]])
+        if columns.size == 0:
+            continue
+        basis = bases[i].reshape(n_frames, 3, -1)  # Phi_f, (F, 3, p)
+        weights = observed[:, columns].astype(np.float64)  # (F, n)
+        frame_normals = np.einsum("fca,fcb->fab", basis, basis)  # (F, p, p)
+        normals = np.einsum("fn,fab->nab", weights, frame_normals)
+        normals += 1e-10 * np.trace(normals, axis1=1, axis2=2)[:, None, None] * np.eye(
+            basis.shape[2]
+        )
+        block = trajectories[:, columns].reshape(n_frames, 3, -1) * weights[:, None, :]
+        rhs = np.einsum("fca,fcn->na", basis, block)
+        coefficients = np.linalg.solve(normals, rhs[:, :, None])[:, :, 0]  # (n, p)
+        trajectories[:, columns] = bases[i] @ coefficients.T
+    return trajectories
+
+
 def track_and_project(
     trajectories: np.ndarray, bounds: np.ndarray, bases: np.ndarray
 ) -> np.ndarray:

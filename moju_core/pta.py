@@ -30,6 +30,9 @@ import numpy as np
 #: Relative singular-value cut-off of the least-squares solve: directions of M weaker than this
 #: (times its largest singular value) are treated as missing.
 RCOND = 1e-10
+#: Ridge of the per-point solves with missing data, relative to M's largest singular value: a
+#: point seen in few frames has fewer equations than coefficients.
+MASKED_RIDGE = 1e-2
 
 #: Condition number of M above which the solve warns: errors in the tracks can then grow more
 #: than ten-thousandfold in the shapes (e.g. estimated rotations that hardly change).
@@ -89,7 +92,10 @@ def trajectory_system(rotations: np.ndarray, basis: np.ndarray) -> np.ndarray:
 
 
 def solve(
-    tracks: np.ndarray, rotations: np.ndarray, n_bases: int
+    tracks: np.ndarray,
+    rotations: np.ndarray,
+    n_bases: int,
+    observed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, float]]:
     """Least-squares trajectory coefficients of all points and the shapes they give.
 
@@ -104,6 +110,9 @@ def solve(
         Camera rotations (rows orthonormal).
     n_bases : int
         Size k of the trajectory basis, ``3k <= 2F``.
+    observed : ndarray of shape (F, P), bool, optional
+        Where the points are observed: each point's least-squares problem then uses its
+        observed rows only (:func:`_solve_masked`). None: all observed.
 
     Returns
     -------
@@ -141,8 +150,37 @@ def solve(
             RuntimeWarning,
             stacklevel=2,
         )
-    pseudo_inverse = (vt[:rank].T / s[:rank]) @ u[:, :rank].T
-    coefficients = pseudo_inverse @ tracks.reshape(2 * n_frames, n_points)  # A, (3k, P)
+    if observed is None:
+        pseudo_inverse = (vt[:rank].T / s[:rank]) @ u[:, :rank].T
+        coefficients = pseudo_inverse @ tracks.reshape(2 * n_frames, n_points)  # A, (3k, P)
+    else:
+        coefficients = _solve_masked(system, tracks, observed, s[0])
     shapes = basis @ coefficients.reshape(n_bases, 3 * n_points)  # (F, 3P): row f is S_f
     diagnostics = {"rank": float(rank), "condition": condition}
     return shapes.reshape(n_frames, 3, n_points), diagnostics
+
+
+def _solve_masked(
+    system: np.ndarray, tracks: np.ndarray, observed: np.ndarray, largest: float
+) -> np.ndarray:
+    """Per-point least squares over the observed rows: ``M_j^T M_j a_j = M_j^T w_j``.
+
+    ``M_j^T M_j = sum_f m_fj M_f^T M_f`` from the frames' 2-row blocks ``M_f`` of the
+    (2F, 3k) system, so all P normal matrices (3k x 3k) cost O(F P k^2) and are solved at
+    once; a ridge of ``(MASKED_RIDGE sigma_1(M))^2`` keeps the coefficients that a point's
+    visible frames leave undetermined near zero instead of failing.
+
+    Returns
+    -------
+    ndarray of shape (3k, P)
+    """
+    n_frames, _, n_points = tracks.shape
+    size = system.shape[1]
+    blocks = system.reshape(n_frames, 2, size)
+    frame_normals = np.einsum("fia,fib->fab", blocks, blocks)  # (F, 3k, 3k)
+    weights = observed.astype(np.float64)
+    normals = np.einsum("fp,fab->pab", weights, frame_normals)
+    normals += (MASKED_RIDGE * largest) ** 2 * np.eye(size)
+    masked = tracks * weights[:, None, :]
+    rhs = np.einsum("fia,fip->pa", blocks, masked)  # (P, 3k)
+    return np.linalg.solve(normals, rhs[:, :, None])[:, :, 0].T

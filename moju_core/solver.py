@@ -8,14 +8,14 @@ from collections.abc import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import __version__, admm, camera, cameras, clustering, defaults, lrr, pta
+from moju_core import __version__, admm, camera, cameras, clustering, defaults, lrr, missing, pta
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams
 from moju_core.preprocessing import normalise
 from moju_core.result import Progress, Result
 from moju_core.rotations import noise_variance, significant_rank, spectrum
 from moju_core.smoothness import choose_smoothness
-from moju_core.validation import check_measurements, check_rotations
+from moju_core.validation import check_observations, check_rotations
 
 #: ``callback(progress) -> bool | None``; returning True asks the solver to stop (it then
 #: raises :class:`moju_core.errors.Cancelled`).
@@ -66,6 +66,7 @@ def reconstruct(
     params: SolverParams | None = None,
     *,
     rotations: np.ndarray | None = None,
+    visibility: np.ndarray | None = None,
     callback: ProgressCallback | None = None,
     threads: int | None = 1,
 ) -> Result:
@@ -75,13 +76,18 @@ def reconstruct(
     ----------
     W : array_like of shape (2F, P)
         Measurement matrix: rows ``2f`` and ``2f + 1`` are the x and y image coordinates of
-        frame f, column j is point j (any unit, e.g. pixels).
+        frame f, column j is point j (any unit, e.g. pixels). NaN (x and y together) where a
+        point is not observed in a frame.
     params : SolverParams, optional
         Solver parameters; ``None`` means all defaults (every ``None`` field is derived from
         the data, see :mod:`moju_core.defaults`).
     rotations : array_like of shape (F, 2, 3), optional
         Known camera rotations. Required when ``params.rotations == "known"``; when given and
         ``params.rotations`` was not set explicitly, they are used (``rotations="known"``).
+    visibility : array_like of shape (F, P), bool, optional
+        True where point j is observed in frame f; it must agree with the NaN of W. The data
+        term then runs over the observed entries only, and the shapes of every point in every
+        frame are returned (see docs/solver.md, "Missing data").
     callback : callable, optional
         ``callback(progress: Progress) -> bool | None``, called at every stage change and
         every iteration; returning True stops the solver, which raises
@@ -106,15 +112,16 @@ def reconstruct(
         When the callback asks to stop.
     """
     if threads is None:
-        return _reconstruct(W, params, rotations, callback)
+        return _reconstruct(W, params, rotations, visibility, callback)
     with threadpool_limits(limits=threads):
-        return _reconstruct(W, params, rotations, callback)
+        return _reconstruct(W, params, rotations, visibility, callback)
 
 
 def _reconstruct(
     W: np.ndarray,
     params: SolverParams | None,
     rotations: np.ndarray | None,
+    visibility: np.ndarray | None,
     callback: ProgressCallback | None,
 ) -> Result:
     params = params if params is not None else SolverParams()
@@ -125,7 +132,8 @@ def _reconstruct(
     start = time.perf_counter()
 
     report("validating")
-    W = check_measurements(W)
+    W, visibility = check_observations(W, visibility)
+    observed = None if visibility.all() else visibility
     n_frames, n_points = W.shape[0] // 2, W.shape[1]
     if params.rotations == "known":
         if rotations is None:
@@ -134,6 +142,10 @@ def _reconstruct(
                 f"({n_frames}, 2, 3), or choose rotations='auto' to estimate them"
             )
         rotations = check_rotations(rotations, n_frames)
+    if observed is not None:
+        # Translation, cameras, the smoothness trials and the initial groups see a low-rank
+        # completion of W (moju_core.missing); the loop's data term sees the observed entries.
+        W, _ = missing.complete(W, observed)
     centred, scale = normalise(W)
 
     report("rotations")
@@ -193,7 +205,7 @@ def _reconstruct(
         return False
 
     if params.method == "pta":
-        out = _trajectory_basis(tracks, rotations, params, hook)
+        out = _trajectory_basis(tracks, rotations, params, hook, observed)
     else:
         out = admm.run(
             tracks,
@@ -202,6 +214,7 @@ def _reconstruct(
             features=features,
             hook=hook,
             refine_rotations=estimate.refine,
+            observed=observed,
         )
     timings["iterate"] = time.perf_counter() - tic
 
@@ -223,6 +236,7 @@ def _reconstruct(
         n_iter=out.n_iter,
         stop_reason=out.stop_reason,
         scale=scale,
+        visibility=visibility,
         extras={
             "version": __version__,
             "n_groups_used": out.extras["n_groups"],
@@ -231,6 +245,7 @@ def _reconstruct(
             "rotations_refined": estimate.refine and params.method != "pta",
             "rotation_rigidity": estimate.rigidity,
             "noise_variance": noise * scale**2,
+            "observed_fraction": float(visibility.mean()),
             "smoothness_trials": smoothness_trials,
             **({"pta": out.extras["pta"]} if "pta" in out.extras else {}),
         },
@@ -238,7 +253,11 @@ def _reconstruct(
 
 
 def _trajectory_basis(
-    tracks: np.ndarray, rotations: np.ndarray, params: SolverParams, hook: admm.IterationHook
+    tracks: np.ndarray,
+    rotations: np.ndarray,
+    params: SolverParams,
+    hook: admm.IterationHook,
+    observed: np.ndarray | None = None,
 ) -> admm.LoopOutput:
     """Method ``pta``: one closed-form solve, reported as a single converged iteration.
 
@@ -248,8 +267,10 @@ def _trajectory_basis(
     stop reason is ``"converged"``.
     """
     n_frames, _, n_points = tracks.shape
-    shapes, diagnostics = pta.solve(tracks, rotations, params.trajectory_bases)
+    shapes, diagnostics = pta.solve(tracks, rotations, params.trajectory_bases, observed)
     residual = camera.project(rotations, shapes) - tracks
+    if observed is not None:
+        residual = residual[np.broadcast_to(observed[:, None, :], residual.shape)]
     nuclear = float(np.linalg.svd(shapes.reshape(n_frames, 3 * n_points), compute_uv=False).sum())
     hook(1, 0.0, 0.0)
     history = {

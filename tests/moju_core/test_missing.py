@@ -1,0 +1,118 @@
+"""Missing data in the solver: completion, the masked S-update and PTA, and reconstruct."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from moju_core import SolverParams, camera, missing, pta, reconstruct
+from moju_core.datasets import make_sequence, occlusion_mask
+from moju_core.errors import MeasurementError
+from moju_core.metrics import e3d
+from moju_core.rotations import project_to_stiefel
+
+
+def _with_nan(W, visibility):
+    hidden = W.copy()
+    hidden[np.repeat(~visibility, 2, axis=0)] = np.nan
+    return hidden
+
+
+@pytest.fixture(scope="module")
+def face():
+    return make_sequence("face3", n_points=400, n_frames=40, seed=2)
+
+
+def test_completion_ignores_the_hidden_values_and_recovers_a_low_rank_w(face):
+    visibility = occlusion_mask(face, lost=0.0, dropout=0.2, seed=3)
+    garbage = face.W.copy()
+    garbage[np.repeat(~visibility, 2, axis=0)] = 1e3  # any values where hidden
+    completed, translation = missing.complete(garbage, visibility)
+    again, _ = missing.complete(face.W, visibility)
+    assert_allclose(completed, again, atol=1e-9)
+    hidden = np.repeat(~visibility, 2, axis=0)
+    assert np.array_equal(completed[~hidden], face.W[~hidden])
+    rms = np.sqrt(np.mean((face.W - face.W.mean(axis=1, keepdims=True)) ** 2))
+    # Dropout at random: the face's tracks are nearly low rank, so the completion is close,
+    # and its row means are the true centroid's image, unlike the visible points' mean.
+    assert np.sqrt(np.mean((completed - face.W)[hidden] ** 2)) < 0.15 * rms
+    truth = face.W.mean(axis=1)
+    assert np.abs(translation - truth).max() < 0.1 * rms
+    visible_mean = np.nanmean(_with_nan(face.W, visibility), axis=1)
+    assert np.abs(translation - truth).max() < 0.5 * np.abs(visible_mean - truth).max()
+
+
+def test_masked_data_step_leaves_hidden_entries_at_the_target():
+    rng = np.random.default_rng(0)
+    rotations = project_to_stiefel(rng.standard_normal((6, 2, 3)))
+    normals = camera.viewing_directions(rotations)
+    back_projected = camera.back_project(rotations, rng.standard_normal((6, 2, 9)))
+    target = rng.standard_normal((6, 3, 9))
+    observed = rng.random((6, 9)) > 0.4
+    out = camera.data_step(back_projected, normals, target, 0.3, observed=observed)
+    full = camera.data_step(back_projected, normals, target, 0.3)
+    assert_allclose(out[:, :, ~observed[0]][0], target[0][:, ~observed[0]])
+    seen = np.broadcast_to(observed[:, None, :], out.shape)
+    assert_allclose(out[seen], full[seen])
+    # The optimality condition of the masked problem at every entry.
+    in_plane = out - normals[:, :, None] * np.einsum("fc,fcp->fp", normals, out)[:, None]
+    residual = observed[:, None, :] * (in_plane - back_projected) + 0.3 * (out - target)
+    assert np.abs(residual).max() < 1e-12
+
+
+def test_masked_pta_ignores_hidden_entries_and_matches_the_plain_solve_when_complete(face):
+    tracks = face.W.reshape(face.n_frames, 2, -1)
+    tracks = tracks - tracks.mean(axis=2, keepdims=True)
+    everything = np.ones((face.n_frames, face.n_points), bool)
+    plain, _ = pta.solve(tracks, face.rotations, 4)
+    masked, _ = pta.solve(tracks, face.rotations, 4, everything)
+    # Equal up to the masked solve's small ridge (pta.MASKED_RIDGE).
+    assert_allclose(masked, plain, atol=1e-3 * np.abs(plain).max())
+    visibility = occlusion_mask(face, seed=4)
+    changed = tracks.copy()
+    changed[np.broadcast_to(~visibility[:, None, :], changed.shape)] = 7.0
+    a, _ = pta.solve(tracks, face.rotations, 4, visibility)
+    b, _ = pta.solve(changed, face.rotations, 4, visibility)
+    assert_allclose(a, b, atol=1e-12)
+
+
+def test_complete_data_gives_bitwise_the_same_result_with_or_without_a_full_mask(face):
+    params = SolverParams(seed=0, rotations="known", max_iter=15)
+    plain = reconstruct(face.W, params, rotations=face.rotations)
+    masked = reconstruct(
+        face.W,
+        params,
+        rotations=face.rotations,
+        visibility=np.ones((face.n_frames, face.n_points), bool),
+    )
+    assert np.array_equal(plain.shapes, masked.shapes)
+    assert plain.visibility.all() and plain.extras["observed_fraction"] == 1.0
+
+
+@pytest.mark.parametrize("method", ["moju", "bmm", "pta"])
+def test_occluded_tracks_are_reconstructed_close_to_the_complete_solve(face, method):
+    visibility = occlusion_mask(face, lost=0.0, seed=5)
+    params = SolverParams(seed=0, rotations="known", method=method)
+    complete = reconstruct(face.W, params, rotations=face.rotations)
+    result = reconstruct(_with_nan(face.W, visibility), params, rotations=face.rotations)
+    assert result.shapes.shape == (face.n_frames, face.n_points, 3)
+    assert np.isfinite(result.shapes).all()
+    assert np.array_equal(result.visibility, visibility)
+    assert result.extras["observed_fraction"] == pytest.approx(visibility.mean())
+    # A sweeping band over 20 % of the width and 2 % dropout: at most 1.5x the error.
+    assert e3d(result.shapes, face.shapes) < 1.5 * e3d(complete.shapes, face.shapes) + 0.005
+
+
+def test_the_same_hidden_entries_given_as_nan_or_with_a_mask_give_the_same_result(face):
+    visibility = occlusion_mask(face, seed=6)
+    W = _with_nan(face.W, visibility)
+    params = SolverParams(seed=0, rotations="known", max_iter=20)
+    a = reconstruct(W, params, rotations=face.rotations)
+    b = reconstruct(W, params, rotations=face.rotations, visibility=visibility)
+    assert np.array_equal(a.shapes, b.shapes)
+
+
+def test_a_point_seen_in_one_frame_only_is_refused_with_a_message(face):
+    visibility = np.ones((face.n_frames, face.n_points), bool)
+    visibility[1:, 7] = False
+    with pytest.raises(MeasurementError, match="frame"):
+        reconstruct(_with_nan(face.W, visibility), SolverParams(max_iter=5))
