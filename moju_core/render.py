@@ -174,8 +174,7 @@ def rasterize(
     for chunk in _chunks(np.flatnonzero(keep), extent):
         found.append(_rasterize_chunk(chunk, corners, depth[faces], low, extent, width))
     pixel, near, tri, bary = (
-        np.concatenate([part[i] for part in found]) if found else np.zeros(0)
-        for i in range(4)
+        np.concatenate([part[i] for part in found]) if found else np.zeros(0) for i in range(4)
     )
     triangle = np.full(height * width, -1, dtype=np.int64)
     weights = np.zeros((height * width, 3))
@@ -433,8 +432,18 @@ def render_sequence(
             keep[keep] = front[coarse_tri[keep]]
             first = (np.where(keep, coarse_tri, -1), coarse_weights)
     assert first is not None
-    return _ground_truth(sequence.name, frames, rotations, scale, first, faces, pixels, depth,
-                         sequence.shapes, zbuffers)
+    return _ground_truth(
+        sequence.name,
+        frames,
+        rotations,
+        scale,
+        first,
+        faces,
+        pixels,
+        depth,
+        sequence.shapes,
+        zbuffers,
+    )
 
 
 def _ground_truth(
@@ -461,8 +470,9 @@ def _ground_truth(
     visible = np.zeros(point_depth.shape, dtype=bool)
     for f in range(frames.shape[0]):
         front = _front_facing(pixels[f], faces)[tri]
-        x, y = np.rint(paths_2d[f, :, 0]).astype(np.int64), np.rint(paths_2d[f, :, 1]).astype(
-            np.int64
+        x, y = (
+            np.rint(paths_2d[f, :, 0]).astype(np.int64),
+            np.rint(paths_2d[f, :, 1]).astype(np.int64),
         )
         inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
         nearest = np.full(x.shape, np.inf)
