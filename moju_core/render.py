@@ -38,7 +38,16 @@ from scipy.spatial.transform import Rotation
 # The grid layout of the sequences' points (one definition, in datasets).
 from moju_core.datasets import _parameter_grid, make_sequence
 
-__all__ = ["RenderedVideo", "rasterize", "render_sequence", "write_video", "VIDEO_CODECS"]
+__all__ = [
+    "VIDEO_CODECS",
+    "RenderedVideo",
+    "TrackScores",
+    "rasterize",
+    "render_sequence",
+    "score_tracks",
+    "write_image_folder",
+    "write_video",
+]
 
 #: FourCC used by :func:`write_video` for each container (what OpenCV's FFmpeg backend in the
 #: ``opencv-python-headless`` wheels can encode).
@@ -539,3 +548,71 @@ def write_image_folder(directory: str | os.PathLike, frames: np.ndarray) -> list
             raise OSError(f"OpenCV could not write {path.name}")
         paths.append(path)
     return paths
+
+
+# --- scoring -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrackScores:
+    """Accuracy of 2D tracks against a rendered video's ground truth.
+
+    Errors are endpoint errors in pixels over the kept track-frames after the first frame
+    (where every track starts exactly on its grid point), against the true image position of
+    the surface point the track started on, whether or not that point is visible there.
+
+    Attributes
+    ----------
+    median_error, p90_error : float
+        Median and 90th percentile endpoint error (pixels).
+    fraction_kept : float
+        Kept track-frames over all track-frames (F x P).
+    fraction_of_visible_kept : float
+        Kept track-frames among those where the ground truth says the point is visible.
+    fraction_kept_occluded : float
+        Kept track-frames where the ground truth says the point is hidden (ideally 0).
+    n_tracks : int
+        Tracks scored (those starting on the surface).
+    n_off_surface : int
+        Tracks starting off the front of the surface (not scored).
+    """
+
+    median_error: float
+    p90_error: float
+    fraction_kept: float
+    fraction_of_visible_kept: float
+    fraction_kept_occluded: float
+    n_tracks: int
+    n_off_surface: int
+
+
+def score_tracks(video: RenderedVideo, W: np.ndarray) -> TrackScores:
+    """Score tracks ``W`` (2F, P) float64 (NaN where lost, pixels) of ``video``.
+
+    The tracks must cover the video's frames; each one is matched to the ground-truth point
+    under its first-frame position (rounded to the nearest pixel centre).
+    """
+    n_frames = W.shape[0] // 2
+    if W.shape[0] != 2 * n_frames or n_frames != video.n_frames:
+        raise ValueError(f"W must have shape (2F, P) with F = {video.n_frames}, got {W.shape}")
+    positions = W.reshape(n_frames, 2, -1).transpose(0, 2, 1)  # (F, P, 2)
+    index = video.lookup(positions[0])
+    on_surface = index >= 0
+    positions = positions[:, on_surface]
+    truth = video.paths_2d[:, index[on_surface]]
+    visible = video.visible[:, index[on_surface]]
+    kept = np.isfinite(positions[..., 0])
+    errors = np.linalg.norm(positions[1:] - truth[1:], axis=2)[kept[1:]]
+    if errors.size == 0:
+        median = p90 = float("nan")
+    else:
+        median, p90 = (float(value) for value in np.percentile(errors, [50, 90]))
+    return TrackScores(
+        median_error=median,
+        p90_error=p90,
+        fraction_kept=float(kept.mean()) if kept.size else 0.0,
+        fraction_of_visible_kept=float(kept[visible].mean()) if visible.any() else 0.0,
+        fraction_kept_occluded=float((kept & ~visible).sum() / max(kept.sum(), 1)),
+        n_tracks=int(on_surface.sum()),
+        n_off_surface=int((~on_surface).sum()),
+    )
