@@ -137,7 +137,8 @@ class Tracks:
 
 
 def textured_region(frame: np.ndarray) -> np.ndarray:
-    """Pixels with texture to track: local grey-level standard deviation >= 3 of 255.
+    """Pixels with texture to track: grey-level standard deviation >= 3 (of 255) over every
+    7 x 7 window that holds the pixel.
 
     Parameters
     ----------
@@ -154,7 +155,10 @@ def textured_region(frame: np.ndarray) -> np.ndarray:
     window = (_TEXTURE_WINDOW, _TEXTURE_WINDOW)
     mean = cv2.blur(grey, window)
     variance = np.maximum(cv2.blur(grey * grey, window) - mean * mean, 0.0)
-    return np.sqrt(variance) >= _TEXTURE_MIN_STD
+    textured = (np.sqrt(variance) >= _TEXTURE_MIN_STD).astype(np.uint8)
+    # A window that straddles an object's outline has a high deviation from the outline
+    # alone; eroding by the window size keeps only the pixels of the textured area itself.
+    return cv2.erode(textured, np.ones(window, dtype=np.uint8)).astype(bool)
 
 
 def _grid(mask: np.ndarray, step: int) -> np.ndarray:
