@@ -6,6 +6,7 @@ They need OpenCV (``opencv-python-headless``, the ``video`` extra), imported by
 
 from __future__ import annotations
 
+import sys
 import time
 import warnings
 from collections.abc import Iterator
@@ -37,10 +38,11 @@ _EXIT_INTERRUPTED = 130
 @contextmanager
 def _progress_bar(quiet: bool) -> Iterator[tqdm]:
     """A tqdm bar over frames, on stderr; warnings print as ``warning: ...`` lines above it."""
-    bar = tqdm(total=None, unit="frame", disable=quiet, leave=False, dynamic_ncols=True)
+    bar = tqdm(total=None, unit="frame", disable=quiet, leave=False, file=sys.stderr)
 
     def show(message, category, filename, lineno, file=None, line=None) -> None:
-        tqdm.write(f"warning: {message}", file=click.get_text_stream("stderr"))
+        # The message says what happened; Python's default format adds a source path.
+        tqdm.write(f"warning: {message}", file=sys.stderr)
 
     try:
         with warnings.catch_warnings():
