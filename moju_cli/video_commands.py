@@ -52,6 +52,16 @@ def _progress_bar(quiet: bool) -> Iterator[tqdm]:
         bar.close()
 
 
+def _require_opencv() -> None:
+    """Fail with an install hint, not a traceback, when OpenCV is missing."""
+    try:
+        import cv2  # noqa: F401
+    except ImportError as exc:
+        raise click.ClickException(
+            "this command needs OpenCV; install it with: pip install 'moju[video]'"
+        ) from exc
+
+
 def _callback(bar: tqdm):
     def update(progress: TrackingProgress) -> None:
         if progress.n_frames is not None and bar.total != progress.n_frames:
@@ -84,6 +94,7 @@ def run_tracking(
     quiet: bool,
 ) -> tuple[Tracks, float]:
     """Track ``video`` with a progress bar; errors of the input become click errors."""
+    _require_opencv()
     tic = time.perf_counter()
     try:
         with _progress_bar(quiet) as bar:
@@ -197,6 +208,7 @@ def track(
 
 def run_video_demo(sequence: str, n_frames: int | None, out_dir: Path, quiet: bool) -> None:
     """``moju demo --video``: render ``sequence``, track the video, score the tracks."""
+    _require_opencv()
     import cv2
 
     from moju_core.render import render_sequence, score_tracks, write_video

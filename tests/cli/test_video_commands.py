@@ -5,6 +5,8 @@ The videos are small renders of the rolling paper (160 x 120, 12 frames).
 
 from __future__ import annotations
 
+import sys
+
 import cv2
 import numpy as np
 import pytest
@@ -135,3 +137,10 @@ def test_demo_video_renders_tracks_and_scores(tmp_path, monkeypatch):
     assert any(line.startswith("kept: ") for line in lines)
     with np.load(out / "tracks.npz") as data:
         assert data["W"].shape[0] == 20
+
+
+def test_track_without_opencv_says_how_to_install(files, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "cv2", None)  # import cv2 now raises ImportError
+    outcome = _run("track", str(files["video"]), "-o", str(tmp_path / "t.npz"))
+    assert outcome.exit_code == 1
+    assert "pip install 'moju[video]'" in outcome.stderr
