@@ -247,6 +247,24 @@ def _decode_video(info: VideoInfo, start: int, end: int | None) -> Iterator[np.n
             index += 1
     finally:
         capture.release()
+    _check_complete(info, index, end)
+
+
+def _check_complete(info: VideoInfo, decoded: int, end: int | None) -> None:
+    """Refuse a video that ends well before the frame count its header declares.
+
+    A cut-off avi or webm still opens and decodes up to the cut; a container's count can be
+    an estimate (from the duration), so a shortfall of one frame or 2 % is let through.
+    """
+    if info.n_frames is None:
+        return
+    wanted = info.n_frames if end is None else min(end, info.n_frames)
+    shortfall = wanted - decoded
+    if shortfall > max(1, 0.02 * wanted):
+        raise VideoError(
+            f"{_name(info.path)} declares {info.n_frames} frames but ends after {decoded}; "
+            "the file looks truncated (re-copy or re-encode it)"
+        )
 
 
 # --- image folders -------------------------------------------------------------------------

@@ -246,12 +246,15 @@ def test_not_a_video(tmp_path):
         track_video(tmp_path / "missing.mp4")
 
 
-def test_truncated_video(video_files, tmp_path):
-    data = video_files["mp4"].read_bytes()
-    cut = tmp_path / "cut.mp4"
-    cut.write_bytes(data[: len(data) // 2])
-    with pytest.raises(VideoError):
-        track_video(cut, mask=video_files["mask"])
+@pytest.mark.parametrize(("suffix", "message"), [(".mp4", "could not be opened"),
+                                                 (".avi", "looks truncated"),
+                                                 (".webm", "looks truncated")])  # fmt: skip
+def test_truncated_video(paper, tmp_path, suffix, message):
+    data = write_video(tmp_path / f"whole{suffix}", paper.frames).read_bytes()
+    cut = tmp_path / f"cut{suffix}"
+    cut.write_bytes(data[: int(0.6 * len(data))])
+    with pytest.raises(VideoError, match=message):
+        track_video(cut, mask=paper.mask)
 
 
 def test_zero_and_one_frame_videos(paper, tmp_path):
