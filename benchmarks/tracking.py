@@ -20,10 +20,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+import cv2
 from harness import RESULTS, provenance, table, write_json, write_markdown
 
 from moju_core.render import render_sequence, score_tracks, write_video
-from moju_core.tracking import track_video
+from moju_core.tracking import DEFAULT_STEP, track_video
 
 FULL = [
     ("paper", 320, 240),
@@ -95,6 +96,10 @@ def main() -> None:
             for r in rows
         ],
     )  # fmt: skip
+    body += [
+        "",
+        f"OpenCV {cv2.__version__}; DIS flow, step {DEFAULT_STEP} px, true first-frame mask.",
+    ]
     write_markdown(RESULTS / f"tracking{suffix}.md", "Tracking on rendered videos", meta, body)
 
 

@@ -257,9 +257,11 @@ class _Tracker:
         """Follow the live tracks into the next frame ``grey`` (H, W) uint8."""
         self.index += 1
         live = np.flatnonzero(self.alive)
+        if live.size == 0:
+            return  # every track is lost; nothing left to match
         moved, ok = self._match(self.previous, grey, self.positions[live], True)
         renew = False
-        if self.key_index < self.index - 1 and live.size:
+        if self.key_index < self.index - 1:
             anchored, anchor_ok = self._match(self.key_grey, grey, self.key_positions[live], False)
             anchor_ok &= ok & (np.linalg.norm(anchored - moved, axis=1) <= _ANCHOR_AGREEMENT)
             moved[anchor_ok] = anchored[anchor_ok]
