@@ -206,17 +206,19 @@ def rasterize(
 
 
 def _chunks(triangles: np.ndarray, extent: np.ndarray):
-    """Groups of triangles whose bounding-box candidates fit in _CHUNK_CANDIDATES."""
-    if triangles.size == 0:
-        return
-    # Similar bounding boxes together, so a chunk's padding to its largest box stays small.
-    triangles = triangles[np.argsort(extent[triangles].prod(axis=1), kind="stable")]
+    """Groups of triangles whose padded bounding-box candidates fit in _CHUNK_CANDIDATES."""
+    # Similar bounding boxes together, so a chunk's padding to its largest box stays small;
+    # a chunk pads every box to its largest width and height, at most the largest side squared.
+    box = extent[triangles].max(axis=1) ** 2
+    order = np.argsort(box, kind="stable")
+    triangles, box = triangles[order], box[order]
     start = 0
     while start < triangles.size:
-        box = extent[triangles[min(start + 1023, triangles.size - 1)]].prod()
-        size = max(1, min(1024 * 64, _CHUNK_CANDIDATES // max(int(box), 1)))
-        yield triangles[start : start + size]
-        start += size
+        ends = np.arange(start + 1, triangles.size + 1)
+        cost = (ends - start) * box[ends - 1]  # increasing: both factors grow
+        end = start + max(1, int(np.searchsorted(cost, _CHUNK_CANDIDATES, side="right")))
+        yield triangles[start:end]
+        start = end
 
 
 def _rasterize_chunk(
