@@ -66,8 +66,10 @@ def _callback(bar: tqdm):
     def update(progress: TrackingProgress) -> None:
         if progress.n_frames is not None and bar.total != progress.n_frames:
             bar.total = progress.n_frames
-        bar.update(progress.frame - bar.n)
         bar.set_postfix(tracks=f"{progress.alive}/{progress.n_points}", refresh=False)
+        bar.update(progress.frame - bar.n)
+        if progress.frame == progress.n_frames:
+            bar.refresh()  # tqdm skips redraws closer than 0.1 s; show the bar complete
 
     return update
 
