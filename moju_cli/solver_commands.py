@@ -578,6 +578,12 @@ def evaluate(result_file: str, truth_file: str, as_json: bool) -> None:
     help="Directory for input.npz, result.npz and ply/.",
 )
 @_solver_option("method")
+@click.option(
+    "--video",
+    is_flag=True,
+    help="Render the sequence into OUT/video.mp4 (320 x 240, 40 frames unless --frames), "
+    "track it and report the track errors against the ground truth (no reconstruction).",
+)
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 @_threads_option
 def demo(
@@ -587,6 +593,7 @@ def demo(
     noise: float,
     out_dir: Path,
     method: str | None,
+    video: bool,
     quiet: bool,
     threads: int,
 ) -> None:
@@ -595,7 +602,13 @@ def demo(
     Writes OUT/input.npz (tracks W, true rotations R, ground truth gt, faces, colors),
     reconstructs with estimated rotations (the default, rotations="auto"), prints the e3D
     and the rotation error, and writes OUT/result.npz and one PLY per frame to OUT/ply/.
+    With --video: see moju_cli.video_commands.run_video_demo.
     """
+    if video:
+        from moju_cli.video_commands import run_video_demo
+
+        run_video_demo(sequence, frames, out_dir, quiet)
+        return
     params = _solver_params({"method": method, "rotations": "auto"})
     outputs = _Outputs()
     with _interruptible(outputs):

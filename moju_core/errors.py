@@ -13,3 +13,11 @@ class Cancelled(Exception):
 
 class MeasurementTooLarge(MeasurementError):
     """The measurements exceed a configured size limit (frames, points or bytes)."""
+
+
+class VideoError(MeasurementError):
+    """A video, an image folder or a mask cannot be used for tracking."""
+
+
+class VideoTooLarge(VideoError, MeasurementTooLarge):
+    """A video exceeds a configured limit (bytes, resolution, frames, duration or points)."""

@@ -1,0 +1,263 @@
+"""Video commands of ``moju``: ``track``, and the rendered-video run of ``moju demo --video``.
+
+They need OpenCV (``opencv-python-headless``, the ``video`` extra), imported by
+:mod:`moju_core.tracking` and :mod:`moju_core.render` when they run.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import click
+import numpy as np
+from tqdm import tqdm
+
+from moju_core.errors import VideoError
+from moju_core.tracking import (
+    DEFAULT_STEP,
+    TrackingProgress,
+    Tracks,
+    track_video,
+    write_tracks,
+)
+
+#: Size of the rendered video of ``moju demo --video``.
+DEMO_VIDEO_SIZE = (320, 240)
+#: Frames of ``moju demo --video`` unless --frames says otherwise.
+DEMO_VIDEO_FRAMES = 40
+
+# Exit status of a process stopped by SIGINT, as shells report it (128 + signal 2).
+_EXIT_INTERRUPTED = 130
+
+
+@contextmanager
+def _progress_bar(quiet: bool) -> Iterator[tqdm]:
+    """A tqdm bar over frames, on stderr; warnings print as ``warning: ...`` lines above it."""
+    bar = tqdm(total=None, unit="frame", disable=quiet, leave=False, file=sys.stderr)
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        # The message says what happened; Python's default format adds a source path.
+        tqdm.write(f"warning: {message}", file=sys.stderr)
+
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = show
+            yield bar
+    finally:
+        bar.close()
+
+
+def _require_opencv() -> None:
+    """Fail with an install hint, not a traceback, when OpenCV is missing."""
+    try:
+        import cv2  # noqa: F401
+    except ImportError as exc:
+        raise click.ClickException(
+            "this command needs OpenCV; install it with: pip install 'moju[video]'"
+        ) from exc
+
+
+def _callback(bar: tqdm):
+    def update(progress: TrackingProgress) -> None:
+        if progress.n_frames is not None and bar.total != progress.n_frames:
+            bar.total = progress.n_frames
+        bar.set_postfix(tracks=f"{progress.alive}/{progress.n_points}", refresh=False)
+        bar.update(progress.frame - bar.n)
+        if progress.frame == progress.n_frames:
+            bar.refresh()  # tqdm skips redraws closer than 0.1 s; show the bar complete
+
+    return update
+
+
+def summary(tracks: Tracks, seconds: float) -> str:
+    """One line: tracks, frames, what was kept, and the time."""
+    to_the_end = int(tracks.visibility[-1].sum())
+    return (
+        f"{tracks.n_points} tracks over {tracks.n_frames} frames: {tracks.fraction_kept:.1%} of "
+        f"the track-frames kept, {to_the_end} tracks ({to_the_end / tracks.n_points:.1%}) "
+        f"followed to the last frame; {seconds:.1f} s "
+        f"({1000.0 * seconds / tracks.n_frames:.0f} ms per frame)"
+    )
+
+
+def run_tracking(
+    video: Path,
+    *,
+    mask: Path | np.ndarray | None,
+    step: int,
+    start: int,
+    end: int | None,
+    method: str,
+    quiet: bool,
+) -> tuple[Tracks, float]:
+    """Track ``video`` with a progress bar; errors of the input become click errors."""
+    _require_opencv()
+    tic = time.perf_counter()
+    try:
+        with _progress_bar(quiet) as bar:
+            tracks = track_video(
+                video,
+                mask=mask,
+                step=step,
+                start=start,
+                end=end,
+                method=method,  # type: ignore[arg-type]
+                callback=_callback(bar),
+            )
+    except VideoError as exc:
+        raise click.ClickException(str(exc)) from exc
+    except KeyboardInterrupt:
+        click.echo("\ninterrupted; no output written", err=True)
+        raise click.exceptions.Exit(_EXIT_INTERRUPTED) from None
+    return tracks, time.perf_counter() - tic
+
+
+def _check_output(output: Path) -> None:
+    if output.suffix.lower() != ".npz":
+        raise click.BadParameter(
+            f"{output.name!r}: tracks are written as npz; name the file *.npz",
+            param_hint="'-o' / '--output'",
+        )
+    if not output.parent.is_dir():
+        raise click.BadParameter(
+            f"directory {str(output.parent)!r} does not exist", param_hint="'-o' / '--output'"
+        )
+
+
+def _write(path: Path, tracks: Tracks) -> None:
+    try:
+        write_tracks(path, tracks)
+    except OSError as exc:
+        raise click.ClickException(f"could not write {path}: {exc.strerror or exc}") from exc
+
+
+@click.command("track")
+@click.argument("video", type=click.Path(exists=True, path_type=Path))
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Tracks file (npz: W with NaN where lost, visibility, colors, frame_size).",
+)
+@click.option(
+    "--mask",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help="PNG of the first tracked frame's size; non-zero pixels mark the object "
+    "[default: the textured region, with a warning].",
+)
+@click.option(
+    "--step",
+    type=click.IntRange(min=1),
+    default=DEFAULT_STEP,
+    show_default=True,
+    help="Grid spacing of the tracked points, in pixels.",
+)
+@click.option(
+    "--start",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="First frame to track (frames are numbered from 0).",
+)
+@click.option(
+    "--end",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Frame to stop before (exclusive) [default: the last frame].",
+)
+@click.option(
+    "--method",
+    type=click.Choice(["dis", "farneback"]),
+    default="dis",
+    show_default=True,
+    help="OpenCV dense optical flow.",
+)
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def track(
+    video: Path,
+    output: Path,
+    mask: Path | None,
+    step: int,
+    start: int,
+    end: int | None,
+    method: str,
+    quiet: bool,
+) -> None:
+    """Dense 2D tracks of the object in VIDEO (mp4, webm, avi, or a folder of images).
+
+    A grid of points every --step pixels over the object in frame --start (the --mask, or
+    the textured region) is followed by chained optical flow with forward-backward checks and
+    re-anchoring to keyframes; a track that fails a check is lost (NaN) from then on.
+    Positions are pixels: x to the right, y down, pixel centres at integers.
+    """
+    _check_output(output)
+    if end is not None and end <= start:
+        raise click.BadParameter(f"--end ({end}) must be after --start ({start})")
+    tracks, seconds = run_tracking(
+        video, mask=mask, step=step, start=start, end=end, method=method, quiet=quiet
+    )
+    _write(output, tracks)
+    click.echo(summary(tracks, seconds))
+    click.echo(f"tracks: {output}")
+
+
+def run_video_demo(sequence: str, n_frames: int | None, out_dir: Path, quiet: bool) -> None:
+    """``moju demo --video``: render ``sequence``, track the video, score the tracks."""
+    _require_opencv()
+    import cv2
+
+    from moju_core.render import render_sequence, score_tracks, write_video
+
+    n_frames = DEMO_VIDEO_FRAMES if n_frames is None else n_frames
+    width, height = DEMO_VIDEO_SIZE
+    tic = time.perf_counter()
+    try:
+        video = render_sequence(sequence, width=width, height=height, n_frames=n_frames)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from exc
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        video_path = write_video(out_dir / "video.mp4", video.frames)
+        mask_path = out_dir / "mask.png"
+        if not cv2.imwrite(str(mask_path), video.mask.astype(np.uint8) * 255):
+            raise OSError(f"OpenCV could not write {mask_path}")
+    except OSError as exc:
+        raise click.ClickException(f"could not write to {out_dir}: {exc}") from exc
+    click.echo(
+        f"{sequence}: rendered {n_frames} frames of {width} x {height} in "
+        f"{time.perf_counter() - tic:.1f} s -> {video_path}"
+    )
+    tracks, seconds = run_tracking(
+        video_path,
+        mask=mask_path,
+        step=DEFAULT_STEP,
+        start=0,
+        end=None,
+        method="dis",
+        quiet=quiet,
+    )
+    tracks_path = out_dir / "tracks.npz"
+    _write(tracks_path, tracks)
+    click.echo(summary(tracks, seconds))
+    scores = score_tracks(video, tracks.W)
+    click.echo(
+        f"track error against the ground truth (kept track-frames after the first): median "
+        f"{scores.median_error:.2f} px, 90th percentile {scores.p90_error:.2f} px"
+    )
+    click.echo(
+        f"kept: {scores.fraction_kept:.1%} of all track-frames, "
+        f"{scores.fraction_of_visible_kept:.1%} of those where the point is visible; "
+        f"{scores.fraction_kept_occluded:.1%} of the kept ones are hidden in the ground truth"
+    )
+    click.echo(f"tracks: {tracks_path}")
+    click.echo(f"next: moju track {video_path} --mask {mask_path} -o tracks.npz")
+
+
+COMMANDS = [track]

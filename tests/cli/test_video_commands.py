@@ -1,0 +1,146 @@
+"""``moju track`` and ``moju demo --video``, in-process through click's CliRunner.
+
+The videos are small renders of the rolling paper (160 x 120, 12 frames).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import moju_cli.video_commands as video_commands
+from moju_cli.main import cli
+from moju_core.render import render_sequence, score_tracks, write_video
+
+N_FRAMES = 12
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    return render_sequence("paper", width=160, height=120, n_frames=N_FRAMES)
+
+
+@pytest.fixture(scope="module")
+def files(rendered, tmp_path_factory):
+    directory = tmp_path_factory.mktemp("video")
+    video = write_video(directory / "paper.mp4", rendered.frames)
+    mask = directory / "mask.png"
+    cv2.imwrite(str(mask), rendered.mask.astype(np.uint8) * 255)
+    return {"video": video, "mask": mask}
+
+
+def _run(*args: str):
+    return CliRunner().invoke(cli, [*args], catch_exceptions=False)
+
+
+def test_track_writes_the_documented_npz(files, rendered, tmp_path):
+    output = tmp_path / "tracks.npz"
+    outcome = _run("track", str(files["video"]), "-o", str(output), "--mask", str(files["mask"]))
+    assert outcome.exit_code == 0, outcome.output
+    with np.load(output, allow_pickle=False) as data:
+        assert set(data.files) == {"W", "visibility", "colors", "frame_size"}
+        W, visibility = data["W"], data["visibility"]
+        assert W.shape[0] == 2 * N_FRAMES and visibility.shape == (N_FRAMES, W.shape[1])
+        assert data["colors"].shape == (W.shape[1], 3)
+        assert list(data["frame_size"]) == [160, 120]
+    start = W[:2].T.astype(np.int64)
+    assert rendered.mask[start[:, 1], start[:, 0]].all()
+    assert score_tracks(rendered, W).median_error < 0.5
+    summary = outcome.stdout.splitlines()
+    assert summary[0].startswith(f"{W.shape[1]} tracks over {N_FRAMES} frames: ")
+    assert f"{visibility.mean():.1%} of the track-frames kept" in summary[0]
+    assert " s (" in summary[0] and "ms per frame" in summary[0]
+    assert summary[1] == f"tracks: {output}"
+
+
+def test_track_options_step_start_end(files, tmp_path):
+    output = tmp_path / "part.npz"
+    outcome = _run(
+        "track", str(files["video"]), "-o", str(output), "--mask", str(files["mask"]),
+        "--step", "8", "--start", "2", "--end", "7", "--quiet",
+    )  # fmt: skip
+    assert outcome.exit_code == 0, outcome.output
+    with np.load(output) as data:
+        assert data["W"].shape[0] == 2 * 5
+        assert np.all(data["W"][0] % 8 == 4) and np.all(data["W"][1] % 8 == 4)
+
+
+def test_track_without_a_mask_warns(files, tmp_path):
+    outcome = _run("track", str(files["video"]), "-o", str(tmp_path / "t.npz"), "-q")
+    assert outcome.exit_code == 0, outcome.output
+    assert "warning: no mask given: tracking the textured region" in outcome.stderr
+
+
+def test_track_progress_bar_counts_frames(files, tmp_path):
+    outcome = _run("track", str(files["video"]), "-o", str(tmp_path / "t.npz"))
+    assert f"{N_FRAMES}/{N_FRAMES}" in outcome.stderr
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda path: path.write_text("hello"), "could not be opened as a video"),
+        (lambda path: path.write_bytes(b""), "is empty"),
+    ],
+)
+def test_track_refuses_bad_videos_and_writes_nothing(tmp_path, make, message):
+    video = tmp_path / "bad.mp4"
+    make(video)
+    output = tmp_path / "tracks.npz"
+    outcome = _run("track", str(video), "-o", str(output))
+    assert outcome.exit_code == 1
+    assert message in outcome.stderr
+    assert not output.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mp4"]
+
+
+def test_track_refuses_a_mask_of_the_wrong_size(files, tmp_path):
+    mask = tmp_path / "mask.png"
+    cv2.imwrite(str(mask), np.full((10, 10), 255, dtype=np.uint8))
+    outcome = _run("track", str(files["video"]), "-o", str(tmp_path / "t.npz"), "--mask", str(mask))
+    assert outcome.exit_code == 1
+    assert "10 x 10 pixels, the video's frames are 160 x 120" in outcome.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["-o", "tracks.h5"], "name the file *.npz"),
+        (["-o", "missing/tracks.npz"], "does not exist"),
+        (["-o", "tracks.npz", "--start", "5", "--end", "5"], "must be after --start"),
+        (["-o", "tracks.npz", "--step", "0"], "--step"),
+    ],
+)
+def test_track_usage_errors(files, tmp_path, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    outcome = _run("track", str(files["video"]), *args)
+    assert outcome.exit_code == 2
+    assert message in outcome.stderr
+
+
+def test_demo_video_renders_tracks_and_scores(tmp_path, monkeypatch):
+    monkeypatch.setattr(video_commands, "DEMO_VIDEO_SIZE", (160, 120))
+    out = tmp_path / "demo"
+    outcome = _run("demo", "--video", "--sequence", "paper", "--frames", "10", "--out", str(out))
+    assert outcome.exit_code == 0, outcome.output
+    assert sorted(p.name for p in out.iterdir()) == ["mask.png", "tracks.npz", "video.mp4"]
+    lines = outcome.stdout.splitlines()
+    assert lines[0].startswith("paper: rendered 10 frames of 160 x 120")
+    errors = [line for line in lines if line.startswith("track error against the ground truth")]
+    assert len(errors) == 1
+    median = float(errors[0].split("median ")[1].split(" px")[0])
+    assert median < 0.5
+    assert any(line.startswith("kept: ") for line in lines)
+    with np.load(out / "tracks.npz") as data:
+        assert data["W"].shape[0] == 20
+
+
+def test_track_without_opencv_says_how_to_install(files, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "cv2", None)  # import cv2 now raises ImportError
+    outcome = _run("track", str(files["video"]), "-o", str(tmp_path / "t.npz"))
+    assert outcome.exit_code == 1
+    assert "pip install 'moju[video]'" in outcome.stderr
