@@ -366,9 +366,7 @@ def _read_npz(
                 size = offset + dtype.itemsize * int(np.prod(shape, dtype=object))
                 read = functools.partial(_read_npz_member, archive, info, size, source_name)
                 declared[name] = _Declared(shape, dtype, read)
-            return _measurements_from_declared(
-                declared, source_name, max_frames, max_points, admit
-            )
+            return _measurements_from_declared(declared, source_name, max_frames, max_points, admit)
     except MeasurementError:
         raise
     except Exception as exc:
@@ -464,9 +462,7 @@ def _read_h5(
     try:
         with h5py.File(target, "r") as h5:
             declared = _h5_declared(h5, source_name)
-            return _measurements_from_declared(
-                declared, source_name, max_frames, max_points, admit
-            )
+            return _measurements_from_declared(declared, source_name, max_frames, max_points, admit)
     except MeasurementError:
         raise
     except Exception as exc:

@@ -150,7 +150,7 @@ def _stalled_upload(url: str, sent_bytes: int, announced: int) -> socket.socket:
     host, port = url.removeprefix("http://").split(":")
     boundary = "stall"
     head = (
-        f"--{boundary}\r\nContent-Disposition: form-data; name=\"file\"; filename=\"w.npz\"\r\n"
+        f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="w.npz"\r\n'
         "Content-Type: application/octet-stream\r\n\r\n"
     ).encode()
     connection = socket.create_connection((host, int(port)), timeout=60)
