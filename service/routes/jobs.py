@@ -80,7 +80,7 @@ def load_record(services: Services, job_id: UUID, owner: str) -> JobRecord:
 
     Another key's job is not found either: callers cannot even learn that it exists.
     """
-    record = services.store.get(job_id)
+    record = services.store.get(job_id, owner=owner)
     if record is None or record.owner != owner:
         raise JobNotFound(job_id)
     return record
@@ -88,7 +88,7 @@ def load_record(services: Services, job_id: UUID, owner: str) -> JobRecord:
 
 async def load_record_async(services: Services, job_id: UUID, owner: str) -> JobRecord:
     """:func:`load_record` for ``async def`` routes."""
-    record = await services.store.get_async(job_id)
+    record = await services.store.get_async(job_id, owner)
     if record is None or record.owner != owner:
         raise JobNotFound(job_id)
     return record
