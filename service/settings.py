@@ -54,7 +54,7 @@ class Settings(BaseSettings):
         ge=1024,
         description=(
             "Largest JSON body accepted by POST /v1/jobs (413 above; larger inputs go as a "
-            "file). Parsed JSON takes about 20 times its size in memory."
+            "file). Parsed JSON takes about 16 times its size in memory."
         ),
     )
     body_timeout: float = Field(

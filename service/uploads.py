@@ -249,8 +249,8 @@ def _json_too_large(size: int | str, limit: int) -> UploadTooLarge:
     )
 
 
-def _parse_json_body(body: bytearray, settings: Settings) -> tuple[TracksBody, Measurements]:
-    """Parse and validate a JSON body (blocking, and about 20 times its size in memory: run
+def _parse_json_body(body: bytearray) -> tuple[TracksBody, Measurements]:
+    """Parse and validate a JSON body (blocking, and about 16 times its size in memory: run
     in a worker thread, on a body of at most MOJU_MAX_JSON_BYTES)."""
     try:
         value = json.loads(body)
@@ -281,7 +281,7 @@ async def _from_json(request: Request, settings: Settings) -> Submission:
     body = bytearray()
     async for chunk in _limited_stream(request, limit, too_large, settings.body_timeout):
         body += chunk
-    parsed, measurements = await anyio.to_thread.run_sync(_parse_json_body, body, settings)
+    parsed, measurements = await anyio.to_thread.run_sync(_parse_json_body, body)
     n_frames, n_points = measurements.n_frames, measurements.n_points
     if n_points > settings.max_points or n_frames > settings.max_frames:
         raise UploadTooLarge(
