@@ -181,7 +181,6 @@ class Supervisor:
         self.gave_up: str | None = None
         self._env: dict[str, str] = {}
         self._status: Redis | None = None
-        self._sessions: set[int] = set()  # every child's session, for the final sweep
         self._published: list[str] | None = None
 
     @property
@@ -237,7 +236,6 @@ class Supervisor:
         else:
             child.process = self._spawn(self.api_command(), self._env)
         assert child.process is not None
-        self._sessions.add(child.process.pid)
         child.started_at = time.monotonic()
         child.restart_at = None
 
@@ -294,7 +292,12 @@ class Supervisor:
         signal.signal(signal.SIGTERM, self._on_signal)
 
     def _kill_leftovers_of(self, child: Child) -> None:
-        """Kill what a dead worker left running (its work horse) in its session."""
+        """Kill what a dead child left running in its session (a worker's work horse).
+
+        Done as soon as the death is seen: a session id is the pid of a process that is
+        gone, and only until the system gives that pid to another process does it name
+        the dead child's session.
+        """
         if child.pid is None:
             return
         for pid in _session_members({child.pid}):
@@ -305,8 +308,7 @@ class Supervisor:
         """Note a child's death and plan its restart; False when it is in a crash loop."""
         assert child.process is not None
         child.last_exit = f"exited with {describe_exit(child.process.returncode)}"
-        if child.kind == "worker":
-            self._kill_leftovers_of(child)
+        self._kill_leftovers_of(child)
         delay = self.options.restart.delay(child, now)
         if delay is None:
             policy = self.options.restart
@@ -376,11 +378,10 @@ class Supervisor:
             stop_process(self.api, timeout=10.0)
         self._stop_workers()
         # The API and the workers have exited: whatever is left in their sessions (a work
-        # horse whose worker died or did not stop) is killed; Redis stops last.
-        redis_pid = self.redis_child.pid if self.redis_child is not None else None
-        for pid in _session_members(self._sessions - {redis_pid}):
-            logger.warning("killing leftover process %d", pid)
-            _kill_and_reap(pid)
+        # horse whose worker did not stop) is killed; Redis stops last.
+        for child in [*self.worker_children, self.api_child]:
+            if child.restart_at is None:  # a child in its pause was swept when it died
+                self._kill_leftovers_of(child)
         if self._status is not None:
             try:
                 publish_down(self._status, self.options.queue_name, [])
