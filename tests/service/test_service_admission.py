@@ -221,3 +221,27 @@ def test_h5_bytes_are_not_materialised_for_a_refused_file() -> None:
     finally:
         tracemalloc.stop()
     assert peak < 4 * MIB
+
+
+def test_json_body_is_parsed_off_the_event_loop(
+    admitting: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The parse runs in a worker thread, so a large body never blocks other requests."""
+    import asyncio
+
+    real_loads, on_loop = json.loads, []
+
+    def loads(text, *args, **kwargs):
+        try:
+            asyncio.get_running_loop()
+            on_loop.append(True)
+        except RuntimeError:  # no event loop in this thread
+            on_loop.append(False)
+        return real_loads(text, *args, **kwargs)
+
+    monkeypatch.setattr(json, "loads", loads)
+    tracks = np.random.default_rng(1).normal(size=(4, 30, 2)).tolist()
+    body = json.dumps({"tracks": tracks, "params": {"max_iter": 5}})
+    answer = admitting.post("/v1/jobs", content=body, headers={"content-type": "application/json"})
+    assert answer.status_code == 202, answer.text
+    assert on_loop == [False]
