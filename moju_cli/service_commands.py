@@ -86,6 +86,7 @@ def serve(
         data_dir=settings.data_dir,
         redis_url=settings.redis_url,
         grace=grace,
+        queue_name=settings.queue_name,
     )
     try:
         status = Supervisor(options).run()

@@ -27,6 +27,7 @@ under the final name.
 
 from __future__ import annotations
 
+import codecs
 import contextlib
 import csv
 import functools
@@ -71,6 +72,9 @@ __all__ = [
 
 PathLike = str | os.PathLike
 Source = str | os.PathLike | IO[bytes]
+#: Called with (F, P) once a file's sizes are known and before its data is read; raises
+#: MeasurementTooLarge (or another MeasurementError) to refuse the file.
+Admit = Callable[[int, int], None]
 
 #: Input formats understood by :func:`read_measurements`.
 FORMATS = ("npz", "h5", "csv")
@@ -84,6 +88,11 @@ _OPTIONAL_NAMES = ("visibility", "R", "gt", "faces", "colors")
 _DATASET_NAMES = ("W", "tracks", *_OPTIONAL_NAMES)
 _EXPECTED_MAIN = "W (2F x P: rows 2f, 2f+1 are x, y of frame f) or tracks (F x P x 2)"
 _CSV_COLUMNS = ("frame", "point", "x", "y")
+#: Longest CSV line read (bytes): a row of four numbers and a few extra columns fits easily,
+#: and a file without line breaks is refused without being held in memory.
+_CSV_MAX_LINE_BYTES = 4096
+#: Bytes of CSV text parsed at once; the reader never holds much more text than this.
+_CSV_BLOCK_BYTES = 2**20
 # A triangulated surface of P vertices has about 2P triangles; 4P leaves room for any honest
 # mesh while bounding what a hostile file can make us read.
 _MAX_FACES_PER_POINT = 4
@@ -163,6 +172,14 @@ class Measurements:
     def observed_fraction(self) -> float:
         """Fraction of the F x P (frame, point) entries that are observed, in (0, 1]."""
         return 1.0 if self.visibility is None else float(self.visibility.mean())
+
+
+class _LeavesFile(Exception):
+    """An HDF5 path crosses a link to another file (internal to the HDF5 reader)."""
+
+
+#: Soft links followed one after the other before a path counts as a loop.
+_MAX_SOFT_LINK_HOPS = 32
 
 
 @dataclass(frozen=True)
@@ -283,6 +300,7 @@ def _measurements_from_declared(
     source_name: str,
     max_frames: int | None,
     max_points: int | None,
+    admit: Admit | None = None,
 ) -> Measurements:
     """Check headers, read the datasets and validate them into :class:`Measurements`."""
     if "W" in declared and "tracks" in declared:
@@ -299,6 +317,8 @@ def _measurements_from_declared(
     n_frames, n_points = _main_size(main, declared[main])
     origin = f"{main} declares shape {declared[main].shape}"
     _refuse_oversized(source_name, origin, n_frames, n_points, max_frames, max_points)
+    if admit is not None:
+        admit(n_frames, n_points)
     for name in _OPTIONAL_NAMES:
         if name not in declared:
             continue
@@ -355,7 +375,11 @@ def _read_npz_member(
 
 
 def _read_npz(
-    handle: IO[bytes], source_name: str, max_frames: int | None, max_points: int | None
+    handle: IO[bytes],
+    source_name: str,
+    max_frames: int | None,
+    max_points: int | None,
+    admit: Admit | None = None,
 ) -> Measurements:
     try:
         with zipfile.ZipFile(handle) as archive:
@@ -373,7 +397,7 @@ def _read_npz(
                 size = offset + dtype.itemsize * int(np.prod(shape, dtype=object))
                 read = functools.partial(_read_npz_member, archive, info, size, source_name)
                 declared[name] = _Declared(shape, dtype, read)
-            return _measurements_from_declared(declared, source_name, max_frames, max_points)
+            return _measurements_from_declared(declared, source_name, max_frames, max_points, admit)
     except MeasurementError:
         raise
     except Exception as exc:
@@ -384,18 +408,54 @@ def _read_npz(
         ) from exc
 
 
+def _h5_resolve(h5: h5py.File, path: str, hops: int = 0) -> str | None:
+    """``path`` with every soft link on it followed: a path of hard links only, or None
+    when nothing is there.
+
+    Raises ``_LeavesFile`` when the path crosses a link to another file (external or
+    user-defined) at any depth, through soft links too, or loops.
+    """
+    if hops > _MAX_SOFT_LINK_HOPS:
+        raise _LeavesFile("soft links that loop")
+    current = ""
+    for part in (part for part in path.split("/") if part and part != "."):
+        group = h5[current or "/"]
+        if not isinstance(group, h5py.Group):
+            return None
+        link = group.get(part, getlink=True)
+        if link is None:
+            return None
+        if isinstance(link, h5py.SoftLink):
+            target = link.path if link.path.startswith("/") else f"{current}/{link.path}"
+            resolved = _h5_resolve(h5, target, hops + 1)
+            if resolved is None:
+                return None
+            current = resolved
+        elif isinstance(link, h5py.HardLink):
+            current = f"{current}/{part}"
+        else:
+            raise _LeavesFile(f"a link to another file ({type(link).__name__})")
+    return current or "/"
+
+
 def _h5_declared(h5: h5py.File, source_name: str) -> dict[str, _Declared]:
     declared = {}
     for name in _DATASET_NAMES:
-        link = h5.get(name, getlink=True)
-        if link is None:
-            continue
-        if isinstance(link, h5py.ExternalLink):
+        try:
+            path = _h5_resolve(h5, name)
+        except _LeavesFile as exc:
             raise MeasurementError(
-                f"{name} in {source_name} is a link to another file; store the data in the "
-                "file itself"
-            )
-        dataset = h5.get(name)
+                f"{name} in {source_name} is a link to another file, or leads to one through "
+                f"{exc}; store the data in the file itself"
+            ) from None
+        if path is None:
+            if h5.get(name, getlink=True) is not None:  # a soft link to nothing
+                raise MeasurementError(
+                    f"{name} in {source_name} is a link to nothing; {name} must be a plain "
+                    "array at the root of the file"
+                )
+            continue
+        dataset = h5.get(path)
         if isinstance(dataset, h5py.Group):
             raise MeasurementError(
                 f"{name} in {source_name} is an HDF5 group; {name} must be a dataset (a plain "
@@ -426,13 +486,14 @@ def _read_h5(
     source_name: str,
     max_frames: int | None,
     max_points: int | None,
+    admit: Admit | None = None,
 ) -> Measurements:
     # A path lets HDF5 use its own file driver, which is faster than going through Python.
     target = source if isinstance(source, (str, os.PathLike)) else handle
     try:
         with h5py.File(target, "r") as h5:
             declared = _h5_declared(h5, source_name)
-            return _measurements_from_declared(declared, source_name, max_frames, max_points)
+            return _measurements_from_declared(declared, source_name, max_frames, max_points, admit)
     except MeasurementError:
         raise
     except Exception as exc:
@@ -441,28 +502,13 @@ def _read_h5(
         ) from exc
 
 
-def _data_line_numbers(body: str, rows: np.ndarray) -> list[int]:
-    """1-based file line of each data row index (the header is line 1, empty lines skipped)."""
-    wanted = {int(row) for row in rows}
-    found: dict[int, int] = {}
-    row = -1
-    for line_number, line in enumerate(body.splitlines(), start=2):
-        if not line:
-            continue
-        row += 1
-        if row in wanted:
-            found[row] = line_number
-            if len(found) == len(wanted):
-                break
-    return [found[int(r)] for r in rows]
-
-
-def _locate_csv_error(body: str, columns: list[int], source_name: str) -> str | None:
-    """Find the first line the fast parser refused and say what is wrong with it."""
+def _locate_csv_error(
+    lines: list[tuple[int, str]], columns: list[int], source_name: str
+) -> str | None:
+    """Find the first of the numbered ``lines`` the fast parser refused and say what is
+    wrong with it."""
     names = dict(zip(columns, _CSV_COLUMNS, strict=True))
-    for line_number, line in enumerate(body.splitlines(), start=2):
-        if not line:
-            continue
+    for line_number, line in lines:
         try:
             cells = next(csv.reader([line]))
         except csv.Error as exc:  # e.g. a lone carriage return inside a field
@@ -499,19 +545,43 @@ def _repeated_pairs(linear: np.ndarray, n_frames: int, n_points: int, source_nam
     )
 
 
-def _read_csv(
-    handle: IO[bytes], source_name: str, max_frames: int | None, max_points: int | None
-) -> Measurements:
+def _csv_line(handle: IO[bytes], line_number: int, source_name: str) -> str | None:
+    """The next line of a CSV without its line break (None at the end), at most
+    ``_CSV_MAX_LINE_BYTES`` long."""
+    start = handle.tell()
+    raw = handle.readline(_CSV_MAX_LINE_BYTES + 1)
+    if not raw:
+        return None
+    if len(raw) > _CSV_MAX_LINE_BYTES:
+        raise _too_long(line_number, source_name)
     try:
-        text = handle.read().decode("utf-8-sig")
+        return raw.decode("utf-8-sig" if line_number == 1 else "utf-8").rstrip("\r\n")
     except UnicodeDecodeError as exc:
         raise MeasurementError(
-            f"{source_name} is neither npz, HDF5 nor UTF-8 text (CSV): byte {exc.start} is not "
-            "valid UTF-8"
+            f"{source_name} is neither npz, HDF5 nor UTF-8 text (CSV): byte "
+            f"{start + exc.start} is not valid UTF-8"
         ) from exc
-    header, _, body = text.partition("\n")
+
+
+def _refuse_binary(handle: IO[bytes], source_name: str) -> None:
+    """Say that the file is not text when what follows a header-less first line is not
+    UTF-8 (a binary file of another kind, more likely than a CSV without a header)."""
+    start = handle.tell()
+    decoder = codecs.getincrementaldecoder("utf-8")()
     try:
-        cells = next(csv.reader([header.rstrip("\r")]), [])
+        decoder.decode(handle.read(_CSV_MAX_LINE_BYTES), final=False)
+    except UnicodeDecodeError as exc:
+        raise MeasurementError(
+            f"{source_name} is neither npz, HDF5 nor UTF-8 text (CSV): byte "
+            f"{start + exc.start} is not valid UTF-8"
+        ) from exc
+
+
+def _csv_header(handle: IO[bytes], source_name: str) -> list[int]:
+    """Read the header line; the column index of frame, point, x and y."""
+    header = _csv_line(handle, 1, source_name) or ""
+    try:
+        cells = next(csv.reader([header]), [])
     except csv.Error as exc:  # e.g. a lone carriage return inside a field
         raise MeasurementError(
             f"the first line of {source_name} is not a valid CSV header ({exc}); it must name "
@@ -520,6 +590,7 @@ def _read_csv(
     names = [cell.strip().lower() for cell in cells]
     missing = [column for column in _CSV_COLUMNS if column not in names]
     if missing:
+        _refuse_binary(handle, source_name)
         raise MeasurementError(
             f"the CSV header of {source_name} lacks column(s) {', '.join(missing)}; the first "
             "line must name the columns frame,point,x,y (any order, extra columns ignored)"
@@ -530,54 +601,160 @@ def _read_csv(
             f"the CSV header of {source_name} names column(s) {', '.join(repeated)} twice; "
             "name each of frame, point, x, y once"
         )
-    columns = [names.index(column) for column in _CSV_COLUMNS]
-    if not body.strip():
-        raise MeasurementError(f"{source_name} has a CSV header but no data rows")
-    try:
-        table = np.loadtxt(
-            io.StringIO(body, newline=None),
-            delimiter=",",
-            usecols=columns,
-            dtype=np.float64,
-            ndmin=2,
-            comments=None,
-            quotechar='"',
-        )
-    except ValueError as exc:
-        message = _locate_csv_error(body, columns, source_name)
-        raise MeasurementError(message or f"could not parse {source_name} as CSV: {exc}") from exc
-    frames, points, x, y = table.T
-    n_rows = table.shape[0]
-    for column, values in (("frame", frames), ("point", points)):
-        # Every frame and point needs rows of its own (3 per frame, 2 per point), so an index
-        # >= n_rows cannot belong to a usable file; refusing it also bounds F * P below.
-        bad = np.flatnonzero((values != np.floor(values)) | (values < 0) | (values >= n_rows))
-        if bad.size:
-            line = _data_line_numbers(body, bad[:1])[0]
+    return [names.index(column) for column in _CSV_COLUMNS]
+
+
+def _numbered_lines(text: str, first_line: int) -> list[tuple[int, str]]:
+    """The non-empty lines of ``text`` with their line numbers in the file."""
+    lines = text.split("\n")
+    return [(first_line + i, line.rstrip("\r")) for i, line in enumerate(lines) if line.strip()]
+
+
+def _too_long(line_number: int, source_name: str) -> MeasurementError:
+    return MeasurementError(
+        f"line {line_number} of {source_name} is longer than {_CSV_MAX_LINE_BYTES} bytes, the "
+        "most a CSV line may have here; a row holds frame,point,x,y (and a few extra columns "
+        "at most), one row per line"
+    )
+
+
+def _check_line_lengths(part: bytes, first_line: int, source_name: str) -> None:
+    breaks = np.flatnonzero(np.frombuffer(part, dtype=np.uint8) == ord("\n"))
+    ends = np.append(breaks, len(part))
+    lengths = np.diff(ends, prepend=-1)  # each line with its line break
+    too_long = np.flatnonzero(lengths > _CSV_MAX_LINE_BYTES)[:1]
+    if too_long.size:
+        raise _too_long(first_line + int(too_long[0]), source_name)
+
+
+def _csv_chunks(
+    handle: IO[bytes], data_start: int, columns: list[int], source_name: str
+) -> Iterator[tuple[np.ndarray, int, str]]:
+    """The data rows in blocks of about ``_CSV_BLOCK_BYTES``: (rows x 4 table of frame,
+    point, x, y; the file line the block starts at; the block's text). Only one block of text
+    is in memory at a time, and no line may be longer than ``_CSV_MAX_LINE_BYTES``."""
+    handle.seek(data_start)
+    line_number, offset, rest = 2, data_start, b""
+    while True:
+        block = handle.read(_CSV_BLOCK_BYTES)
+        data = rest + block
+        if not data:
+            return
+        cut = data.rfind(b"\n") + 1 if block else len(data)
+        part, rest = data[:cut], data[cut:]
+        if len(rest) > _CSV_MAX_LINE_BYTES:
+            raise _too_long(line_number + part.count(b"\n"), source_name)
+        if not part:
+            continue
+        _check_line_lengths(part, line_number, source_name)
+        try:
+            text = part.decode("utf-8")
+        except UnicodeDecodeError as exc:
             raise MeasurementError(
-                f"line {line} of {source_name}: {column} is {values[bad[0]]:g}; frames and "
-                f"points must be numbered 0..F-1 and 0..P-1, each with rows of its own, and "
-                f"the file has {n_rows} rows"
+                f"{source_name} is neither npz, HDF5 nor UTF-8 text (CSV): byte "
+                f"{offset + exc.start} is not valid UTF-8"
+            ) from exc
+        if text.strip():
+            try:
+                table = np.loadtxt(
+                    io.StringIO(text, newline=None),
+                    delimiter=",",
+                    usecols=columns,
+                    dtype=np.float64,
+                    ndmin=2,
+                    comments=None,
+                    quotechar='"',
+                )
+            except ValueError as exc:
+                lines = _numbered_lines(text, line_number)
+                message = _locate_csv_error(lines, columns, source_name)
+                raise MeasurementError(
+                    message or f"could not parse {source_name} as CSV: {exc}"
+                ) from exc
+            yield table, line_number, text
+        line_number += part.count(b"\n")
+        offset += len(part)
+        if not block:
+            return
+
+
+def _check_csv_indices(
+    table: np.ndarray, first_line: int, text: str, n_rows: int | None, source_name: str
+) -> None:
+    """Frame and point indices are whole and >= 0 (and < ``n_rows`` once it is known)."""
+    for column, values in (("frame", table[:, 0]), ("point", table[:, 1])):
+        bad = (values != np.floor(values)) | (values < 0)
+        if n_rows is not None:
+            # Indices >= n_rows cannot belong to a usable file and would overflow F * P.
+            bad |= values >= n_rows
+        first = np.flatnonzero(bad)[:1]
+        if first.size:
+            line = _numbered_lines(text, first_line)[first[0]][0]
+            raise MeasurementError(
+                f"line {line} of {source_name}: {column} is {values[first[0]]:g}; frames and "
+                "points must be numbered 0..F-1 and 0..P-1, each with rows of its own"
+                + ("" if n_rows is None else f", and the file has {n_rows} rows")
             )
-    frames = frames.astype(np.int64)
-    points = points.astype(np.int64)
-    n_frames, n_points = int(frames.max()) + 1, int(points.max()) + 1
-    origin = "largest frame and point indices of its rows"
-    _refuse_oversized(source_name, origin, n_frames, n_points, max_frames, max_points)
-    linear = frames * n_points + points
-    # Checked on the rows, before W (F x P) is allocated: a stray large index (a frame or point
-    # with too few rows of its own) is refused without building the W it would imply.
-    if np.unique(linear).size != n_rows:
+
+
+def _read_csv(
+    handle: IO[bytes],
+    source_name: str,
+    max_frames: int | None,
+    max_points: int | None,
+    admit: Admit | None = None,
+) -> Measurements:
+    """Read a long-format CSV (frame,point,x,y) in two streamed passes.
+
+    The first pass only counts the rows and finds F and P (one chunk of rows in memory); the
+    limits and ``admit`` are checked then, before the second pass builds W (2F, P).
+    """
+    columns = _csv_header(handle, source_name)
+    data_start = handle.tell()
+    max_rows = None if max_frames is None or max_points is None else max_frames * max_points
+    n_rows, largest = 0, np.zeros(2)
+    for table, first_line, text in _csv_chunks(handle, data_start, columns, source_name):
+        _check_csv_indices(table, first_line, text, None, source_name)
+        n_rows += table.shape[0]
+        largest = np.maximum(largest, table[:, :2].max(axis=0))
+        if max_rows is not None and n_rows > max_rows:
+            raise MeasurementTooLarge(
+                f"{source_name} has more than {max_rows} data rows, more than {max_frames} "
+                f"frames x {max_points} points (the limit) can fill. Send fewer frames or "
+                "subsample the points"
+            )
+    if n_rows == 0:
+        raise MeasurementError(f"{source_name} has a CSV header but no data rows")
+    n_frames, n_points = int(largest[0]) + 1, int(largest[1]) + 1
+    if n_frames <= n_rows and n_points <= n_rows:  # else the second pass says which line
+        origin = "largest frame and point indices of its rows"
+        _refuse_oversized(source_name, origin, n_frames, n_points, max_frames, max_points)
+        if admit is not None:
+            admit(n_frames, n_points)
+    # Every frame and point needs rows of its own (3 per frame, 2 per point), so an index
+    # >= n_rows cannot belong to a usable file: W is built only within that bound (the second
+    # pass names the line otherwise), which also bounds F x P.
+    within = n_frames <= n_rows and n_points <= n_rows
+    # Pairs without a row are not observed: NaN, as in W of the other formats.
+    W = np.full((2 * n_frames, n_points), np.nan) if within else None
+    linear = np.empty(n_rows, dtype=np.int64)
+    done = 0
+    for table, first_line, text in _csv_chunks(handle, data_start, columns, source_name):
+        _check_csv_indices(table, first_line, text, n_rows, source_name)
+        frames, points = table[:, 0].astype(np.int64), table[:, 1].astype(np.int64)
+        linear[done : done + len(frames)] = frames * n_points + points
+        done += len(frames)
+        if W is not None:
+            flat = W.reshape(-1)
+            flat[2 * frames * n_points + points] = table[:, 2]
+            flat[(2 * frames + 1) * n_points + points] = table[:, 3]
+    if W is None or np.unique(linear).size != n_rows:
         raise MeasurementError(_repeated_pairs(linear, n_frames, n_points, source_name))
     if n_frames >= 2 and n_points >= 3:  # else Measurements names the size problem
         check_observation_counts(
-            np.bincount(points, minlength=n_points), np.bincount(frames, minlength=n_frames)
+            np.bincount(linear % n_points, minlength=n_points),
+            np.bincount(linear // n_points, minlength=n_frames),
         )
-    # Pairs without a row are not observed: NaN, as in W of the other formats.
-    W = np.full((2 * n_frames, n_points), np.nan)
-    flat = W.reshape(-1)
-    flat[2 * frames * n_points + points] = x
-    flat[(2 * frames + 1) * n_points + points] = y
     return Measurements(W=W)
 
 
@@ -587,6 +764,7 @@ def read_measurements(
     format: str | None = None,
     max_points: int | None = None,
     max_frames: int | None = None,
+    admit: Admit | None = None,
 ) -> Measurements:
     """Read and validate measurements from an npz, HDF5 or CSV file.
 
@@ -600,6 +778,11 @@ def read_measurements(
     max_points, max_frames : int or None, default None
         Largest P and F accepted. They are checked against the sizes a file declares before
         its data is read, so an oversized upload costs no memory.
+    admit : callable (F, P) -> None, optional
+        Called once the number of frames F and points P is known and before any array of
+        that size is built: from the headers for npz and HDF5, after a first streamed pass
+        over the rows (one chunk in memory) for CSV. It refuses a file by raising
+        :class:`MeasurementTooLarge` (e.g. when the solver's memory estimate is too large).
 
     Returns
     -------
@@ -629,10 +812,10 @@ def read_measurements(
         if format is None:
             format = _detect_format(handle, source, source_name)
         if format == "npz":
-            return _read_npz(handle, source_name, max_frames, max_points)
+            return _read_npz(handle, source_name, max_frames, max_points, admit)
         if format == "h5":
-            return _read_h5(source, handle, source_name, max_frames, max_points)
-        return _read_csv(handle, source_name, max_frames, max_points)
+            return _read_h5(source, handle, source_name, max_frames, max_points, admit)
+        return _read_csv(handle, source_name, max_frames, max_points, admit)
 
 
 def _measurement_arrays(measurements: Measurements) -> dict[str, np.ndarray]:

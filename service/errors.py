@@ -76,6 +76,16 @@ class UploadTooLarge(ServiceError):
     status_code = 413
 
 
+class BodyTimeout(ServiceError):
+    """The client stopped sending its request body (HTTP 408); the connection is closed."""
+
+    status_code = 408
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.headers = {"Connection": "close"}
+
+
 class TooManyJobs(ServiceError):
     """The caller already has as many queued or running jobs as allowed (HTTP 429)."""
 

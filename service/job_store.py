@@ -162,6 +162,11 @@ def lease_key(job_id: UUID) -> str:
     return f"{_LEASE_PREFIX}{job_id}"
 
 
+def _owned_by(fields: dict, owner: str | None) -> bool:
+    """Whether a raw record belongs to ``owner`` (None: anyone's record will do)."""
+    return owner is None or (_text(fields.get(b"owner")) or "") == owner
+
+
 def index_key(owner: str) -> str:
     """Redis key of an owner's job list ("" is the anonymous owner)."""
     return f"{INDEX_KEY}:{owner}" if owner else INDEX_KEY
@@ -359,8 +364,12 @@ class JobStore:
             rq_fields = self.connection.hmget(RQJob.key_for(current), "status", "started_at")
         return _liveness(rq_fields, lease)
 
-    def get(self, job_id: UUID, *, reconcile_with_rq: bool = True) -> JobRecord | None:
-        """The record of a job, or None when there is none (never existed, deleted, expired).
+    def get(
+        self, job_id: UUID, *, reconcile_with_rq: bool = True, owner: str | None = None
+    ) -> JobRecord | None:
+        """The record of a job, or None when there is none (never existed, deleted, expired)
+        or, with ``owner``, when it belongs to another owner: found out before the record is
+        decoded, so that another key's job costs no more to refuse than an unknown id.
 
         Active records are checked against RQ and their lease in the same round trip; a job
         whose worker died is dealt with here, once (see :func:`reconcile` and
@@ -373,14 +382,14 @@ class JobStore:
         pipe = self.connection.pipeline(transaction=False)
         self._read_pipeline(pipe, job_id)
         fields, rq_fields, lease = pipe.execute()
-        if not fields:
+        if not fields or not _owned_by(fields, owner):
             return None
         record = _decode(job_id, fields)
         if record.status not in ACTIVE_STATES:
             return record
         return self._checked(record, self._liveness_of(job_id, fields, rq_fields, lease))
 
-    async def get_async(self, job_id: UUID) -> JobRecord | None:
+    async def get_async(self, job_id: UUID, owner: str | None = None) -> JobRecord | None:
         """:meth:`get` for the event loop, through the asyncio client.
 
         The API's hottest requests (status polls, event streams) read a record and nothing
@@ -392,7 +401,7 @@ class JobStore:
         async with self.async_connection.pipeline(transaction=False) as pipe:
             self._read_pipeline(pipe, job_id)
             fields, rq_fields, lease = await pipe.execute()
-        if not fields:
+        if not fields or not _owned_by(fields, owner):
             return None
         record = _decode(job_id, fields)
         if record.status not in ACTIVE_STATES:

@@ -49,6 +49,23 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(
         256 * MIB, ge=1024, description="Largest request body accepted by POST /v1/jobs."
     )
+    max_json_bytes: int = Field(
+        4 * MIB,
+        ge=1024,
+        description=(
+            "Largest JSON body accepted by POST /v1/jobs (413 above; larger inputs go as a "
+            "file). Parsed JSON takes about 16 times its size in memory."
+        ),
+    )
+    body_timeout: float = Field(
+        30.0,
+        gt=0,
+        le=3600,
+        description=(
+            "Seconds a request body may make no progress (no byte arriving) before the "
+            "request is answered 408 and its partial upload deleted."
+        ),
+    )
     max_points: int = Field(50_000, ge=3, description="Largest number of points P per job.")
     max_frames: int = Field(2_000, ge=2, description="Largest number of frames F per job.")
     worker_memory_bytes: int = Field(

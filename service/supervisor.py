@@ -3,10 +3,18 @@
 Process tree::
 
     moju serve (this supervisor)
-     |- redis-server            only without MOJU_REDIS_URL; loopback, free port,
-     |                          append-only file under <data_dir>/redis
+     |- redis-server            only without MOJU_REDIS_URL; loopback, a free port kept
+     |                          across restarts, append-only file under <data_dir>/redis
      |- python -m worker  x N   each forks a work horse per job
      '- python -m uvicorn       the API on --host:--port (default 127.0.0.1:8000)
+
+A child that dies is started again after a pause that doubles with each quick death
+(:class:`RestartPolicy`); the supervisor logs each death and restart and tells the API what is
+down (:mod:`service.serve_status`, shown by ``/readyz``). The work horse a dead worker left
+behind is killed before the worker is replaced: its job is then found without a lease and
+queued again or failed by the API's watchdog, as for any lost worker. A child that keeps dying
+(a crash loop) makes the supervisor give up with a message naming it, and only then does the
+whole service stop.
 
 Children run in their own sessions, so Ctrl-C in the terminal reaches only the supervisor,
 which then stops them in order: the API first (no new jobs), then the workers (warm shutdown:
@@ -32,13 +40,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
+from redis import Redis
+from redis.exceptions import RedisError
 
 from service.processes import die_with_parent, stop_process, wait_or_kill
 from service.redis_server import RedisServer
+from service.serve_status import publish_down
 
 logger = logging.getLogger(__name__)
 
 _PR_SET_CHILD_SUBREAPER = 36
+#: Seconds between two looks at the children.
+POLL_SECONDS = 0.25
 
 
 def _become_subreaper() -> None:
@@ -48,21 +61,94 @@ def _become_subreaper() -> None:
         libc.prctl(_PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)
 
 
-def _adopted_children(known: set[int]) -> list[int]:
-    """PIDs whose parent is this process, other than the ``known`` ones (Linux /proc)."""
-    me, found = os.getpid(), []
+def _session_members(sessions: set[int]) -> list[int]:
+    """PIDs of live processes in any of the given sessions (Linux /proc).
+
+    Every child of the supervisor leads its own session, and a work horse stays in its
+    worker's session (RQ gives it only its own process group), so the horses a worker left
+    behind are the members of that worker's session.
+    """
+    found = []
     for entry in Path("/proc").iterdir() if Path("/proc").is_dir() else []:
-        if not entry.name.isdigit() or int(entry.name) in known:
+        if not entry.name.isdigit():
             continue
         try:
             stat = (entry / "stat").read_text()
         except OSError:
             continue
-        # Fields after the parenthesised command name: state, ppid, ...
+        # Fields after the parenthesised command name: state, ppid, pgrp, session, ...
         fields = stat.rsplit(")", 1)[-1].split()
-        if len(fields) > 1 and int(fields[1]) == me:
+        if len(fields) > 3 and fields[0] != "Z" and int(fields[3]) in sessions:
             found.append(int(entry.name))
     return found
+
+
+def _kill_and_reap(pid: int) -> None:
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        return
+    try:
+        os.waitpid(pid, 0)  # ours once adopted (subreaper)
+    except ChildProcessError:
+        pass
+
+
+def describe_exit(status: int | None) -> str:
+    """``exit status 1`` or ``signal SIGKILL`` for a ``Popen.returncode``."""
+    if status is None:
+        return "no exit status"
+    if status < 0:
+        try:
+            return f"signal {signal.Signals(-status).name}"
+        except ValueError:
+            return f"signal {-status}"
+    return f"exit status {status}"
+
+
+@dataclass(frozen=True)
+class RestartPolicy:
+    """When a child that died is started again, and when the supervisor gives up.
+
+    The pause before a restart is ``first_delay`` seconds and doubles with each death that
+    ends a short life (under ``stable_after`` seconds), up to ``max_delay``; a child that ran
+    for ``stable_after`` seconds starts over at ``first_delay``. A child that dies more than
+    ``max_restarts`` times within ``window`` seconds is in a crash loop: the supervisor gives
+    up and stops the service.
+    """
+
+    first_delay: float = 0.5
+    max_delay: float = 10.0
+    stable_after: float = 30.0
+    max_restarts: int = 5
+    window: float = 120.0
+
+    def delay(self, child: Child, now: float) -> float | None:
+        """Seconds to wait before restarting ``child``, which just died; None: give up."""
+        child.deaths = [t for t in child.deaths if now - t <= self.window] + [now]
+        if len(child.deaths) > self.max_restarts:
+            return None
+        lived = now - child.started_at
+        child.quick_deaths = child.quick_deaths + 1 if lived < self.stable_after else 1
+        return min(self.max_delay, self.first_delay * 2 ** (child.quick_deaths - 1))
+
+
+@dataclass
+class Child:
+    """One supervised process and the history of its deaths."""
+
+    name: str
+    kind: str  # "redis", "worker" or "api"
+    process: subprocess.Popen | None = None
+    started_at: float = 0.0
+    deaths: list[float] = field(default_factory=list)
+    quick_deaths: int = 0
+    restart_at: float | None = None
+    last_exit: str = ""
+
+    @property
+    def pid(self) -> int | None:
+        return None if self.process is None else self.process.pid
 
 
 @dataclass
@@ -77,18 +163,40 @@ class ServeOptions:
     grace: float = 10.0
     log_level: str = "info"
     extra_env: dict[str, str] = field(default_factory=dict)
+    queue_name: str = "moju"
+    restart: RestartPolicy = field(default_factory=RestartPolicy)
 
 
 class Supervisor:
-    """Starts, watches and stops the processes of ``moju serve``."""
+    """Starts, watches, restarts and stops the processes of ``moju serve``."""
 
     def __init__(self, options: ServeOptions) -> None:
         self.options = options
         self.redis: RedisServer | None = None
-        self.workers: list[subprocess.Popen] = []
-        self.api: subprocess.Popen | None = None
+        self.redis_child: Child | None = None
+        self.worker_children: list[Child] = []
+        self.api_child = Child("the API", "api")
         self.stop_requested = threading.Event()
         self.signals_received = 0
+        self.gave_up: str | None = None
+        self._env: dict[str, str] = {}
+        self._status: Redis | None = None
+        self._published: list[str] | None = None
+
+    @property
+    def workers(self) -> list[subprocess.Popen]:
+        """The current worker processes."""
+        return [c.process for c in self.worker_children if c.process is not None]
+
+    @property
+    def api(self) -> subprocess.Popen | None:
+        """The current API process."""
+        return self.api_child.process
+
+    def children(self) -> list[Child]:
+        """Every supervised child, in the order they are started."""
+        first = [self.redis_child] if self.redis_child is not None else []
+        return [*first, *self.worker_children, self.api_child]
 
     # ---------------------------------------------------------------- starting
 
@@ -104,6 +212,33 @@ class Supervisor:
             command, env=env, start_new_session=True, preexec_fn=die_with_parent
         )
 
+    def worker_command(self) -> list[str]:
+        """The command line of one worker."""
+        return [sys.executable, "-m", "worker"]
+
+    def api_command(self) -> list[str]:
+        """The command line of the API."""
+        options = self.options
+        return [
+            sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app",
+            "--host", options.host, "--port", str(options.port),
+            "--log-level", options.log_level, "--timeout-graceful-shutdown", "3",
+        ]  # fmt: skip
+
+    def _launch(self, child: Child) -> None:
+        """Start (or start again) one child."""
+        if child.kind == "redis":
+            assert self.redis is not None
+            self.redis.start()  # same port as before: clients reconnect to the same URL
+            child.process = self.redis.process
+        elif child.kind == "worker":
+            child.process = self._spawn(self.worker_command(), self._env)
+        else:
+            child.process = self._spawn(self.api_command(), self._env)
+        assert child.process is not None
+        child.started_at = time.monotonic()
+        child.restart_at = None
+
     def start(self) -> str:
         """Start every process; return the API's base URL once it answers."""
         options = self.options
@@ -112,17 +247,18 @@ class Supervisor:
         redis_url = options.redis_url
         if redis_url is None:
             self.redis = RedisServer(persistence_dir=options.data_dir / "redis")
-            redis_url = self.redis.start()
+            self.redis_child = Child("Redis", "redis")
+            self._launch(self.redis_child)
+            self.redis.fixed_port = self.redis.port
+            redis_url = self.redis.url
             logger.info("embedded Redis on %s (data in %s)", redis_url, self.redis.persistence_dir)
-        env = self._environment(redis_url)
-        for _ in range(options.workers):
-            self.workers.append(self._spawn([sys.executable, "-m", "worker"], env))
-        api_command = [
-            sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app",
-            "--host", options.host, "--port", str(options.port),
-            "--log-level", options.log_level, "--timeout-graceful-shutdown", "3",
-        ]  # fmt: skip
-        self.api = self._spawn(api_command, env)
+        self._env = self._environment(redis_url)
+        self._status = Redis.from_url(redis_url, socket_connect_timeout=0.5, socket_timeout=1)
+        for number in range(1, options.workers + 1):
+            child = Child(f"worker {number}", "worker")
+            self.worker_children.append(child)
+            self._launch(child)
+        self._launch(self.api_child)
         base_url = f"http://{options.host}:{options.port}"
         self._wait_for_api(base_url)
         return base_url
@@ -155,18 +291,83 @@ class Supervisor:
         signal.signal(signal.SIGINT, self._on_signal)
         signal.signal(signal.SIGTERM, self._on_signal)
 
+    def _kill_leftovers_of(self, child: Child) -> None:
+        """Kill what a dead child left running in its session (a worker's work horse).
+
+        Done as soon as the death is seen: a session id is the pid of a process that is
+        gone, and only until the system gives that pid to another process does it name
+        the dead child's session.
+        """
+        if child.pid is None:
+            return
+        for pid in _session_members({child.pid}):
+            logger.warning("killing process %d left behind by %s", pid, child.name)
+            _kill_and_reap(pid)
+
+    def _on_death(self, child: Child, now: float) -> bool:
+        """Note a child's death and plan its restart; False when it is in a crash loop."""
+        assert child.process is not None
+        child.last_exit = f"exited with {describe_exit(child.process.returncode)}"
+        self._kill_leftovers_of(child)
+        delay = self.options.restart.delay(child, now)
+        if delay is None:
+            policy = self.options.restart
+            self.gave_up = (
+                f"giving up: {child.name} died {len(child.deaths)} times within "
+                f"{policy.window:.0f} s (last {child.last_exit}); stopping the service. "
+                "Its own messages above say why it failed"
+            )
+            logger.error("%s", self.gave_up)
+            return False
+        child.restart_at = now + delay
+        logger.warning(
+            "%s (pid %d) %s; restarting it in %.1f s", child.name, child.pid, child.last_exit, delay
+        )
+        return True
+
+    def _restart(self, child: Child) -> None:
+        try:
+            self._launch(child)
+        except RuntimeError as exc:  # Redis could not start (e.g. its port was taken)
+            logger.error("%s did not start again: %s", child.name, exc)
+            child.process = None
+            child.restart_at = time.monotonic() + self.options.restart.max_delay
+            return
+        logger.info("%s started again (pid %d)", child.name, child.pid)
+
+    def _publish(self, now: float) -> None:
+        """Tell the API (``/readyz``) which children are down, while any is."""
+        down = [
+            f"{c.name} {c.last_exit}; restarting in {max(0.0, (c.restart_at or now) - now):.1f} s"
+            for c in self.children()
+            if c.restart_at is not None and c.kind != "api"
+        ]
+        if self._status is None or (not down and not self._published):
+            return
+        try:
+            publish_down(self._status, self.options.queue_name, down)
+            self._published = down
+        except RedisError:
+            pass  # Redis itself is down: the API says so on its own
+
+    def check_children(self) -> bool:
+        """One look at every child: note deaths, restart what is due. False: give up."""
+        now = time.monotonic()
+        for child in self.children():
+            if child.restart_at is None:
+                if child.process is not None and child.process.poll() is not None:
+                    if not self._on_death(child, now):
+                        return False
+            elif now >= child.restart_at:
+                self._restart(child)
+        self._publish(now)
+        return True
+
     def watch(self) -> int:
-        """Wait until a stop is requested (0) or a child exits on its own (1)."""
-        while not self.stop_requested.wait(0.5):
-            children = [("API", self.api), *(("worker", w) for w in self.workers)]
-            if self.redis is not None:
-                children.append(("Redis", self.redis.process))
-            for name, process in children:
-                if process is not None and process.poll() is not None:
-                    logger.error(
-                        "%s (pid %d) exited with %s", name, process.pid, process.returncode
-                    )
-                    return 1
+        """Keep every child running until a stop is requested (0) or one crash-loops (1)."""
+        while not self.stop_requested.wait(POLL_SECONDS):
+            if not self.check_children():
+                return 1
         return 0
 
     # ---------------------------------------------------------------- stopping
@@ -176,18 +377,17 @@ class Supervisor:
         if self.api is not None:
             stop_process(self.api, timeout=10.0)
         self._stop_workers()
-        known = {w.pid for w in self.workers}
-        if self.api is not None:
-            known.add(self.api.pid)
-        if self.redis is not None and self.redis.process is not None:
-            known.add(self.redis.process.pid)
-        for pid in _adopted_children(known):
-            logger.warning("killing leftover process %d", pid)
+        # The API and the workers have exited: whatever is left in their sessions (a work
+        # horse whose worker did not stop) is killed; Redis stops last.
+        for child in [*self.worker_children, self.api_child]:
+            if child.restart_at is None:  # a child in its pause was swept when it died
+                self._kill_leftovers_of(child)
+        if self._status is not None:
             try:
-                os.kill(pid, signal.SIGKILL)
-                os.waitpid(pid, 0)
-            except (ProcessLookupError, ChildProcessError):
+                publish_down(self._status, self.options.queue_name, [])
+            except RedisError:
                 pass
+            self._status.close()
         if self.redis is not None:
             self.redis.stop()
 

@@ -9,12 +9,14 @@ read), and the parameters are :class:`moju_core.params.SolverParams`.
 
 from __future__ import annotations
 
+import functools
 import json
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from pathlib import PurePath
 from typing import Any
 
+import anyio
 import anyio.to_thread
 import numpy as np
 from pydantic import ValidationError
@@ -28,13 +30,15 @@ from moju_core.io import Measurements, read_measurements
 from moju_core.params import SolverParams
 from moju_core.rotations import min_frames_for_bases
 from moju_core.validation import estimate_memory_bytes, tracks_to_W
-from service.errors import InvalidInput, UnsupportedMediaType, UploadTooLarge
+from service.errors import BodyTimeout, InvalidInput, UnsupportedMediaType, UploadTooLarge
 from service.schemas import InputSummary, TracksBody
 from service.settings import Settings, describe_bytes
 from service.validation_messages import describe_errors
 
 _FILE_FORMATS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv"}
 _FORM_FIELDS = ("file", "params")
+#: Longest 'params' part read when it comes as a file (every parameter fits in a few hundred).
+MAX_PARAMS_BYTES = 65536
 _TOO_DEEP = (
     "{what} nests arrays or objects too deeply to be read; tracks are F x P x 2 nested lists "
     "and parameters a flat object"
@@ -80,13 +84,34 @@ def check_content_length(request: Request, limit: int) -> None:
         raise _too_large(size, limit)
 
 
-async def _limited_stream(request: Request, limit: int) -> AsyncIterator[bytes]:
-    """The body's chunks, stopping with 413 as soon as more than ``limit`` bytes arrived."""
+async def _limited_stream(
+    request: Request,
+    limit: int,
+    too_large: Callable[[int | str, int], UploadTooLarge] = _too_large,
+    timeout: float = 30.0,
+) -> AsyncIterator[bytes]:
+    """The body's chunks, stopping with 413 as soon as more than ``limit`` bytes arrived and
+    with 408 when no byte arrived for ``timeout`` seconds (MOJU_BODY_TIMEOUT).
+
+    The multipart parser closes (and so deletes) its spooled files when this raises.
+    """
     received = 0
-    async for chunk in request.stream():
+    chunks = request.stream().__aiter__()
+    while True:
+        with anyio.move_on_after(timeout) as waited:
+            try:
+                chunk = await chunks.__anext__()
+            except StopAsyncIteration:
+                return
+        if waited.cancelled_caught:
+            raise BodyTimeout(
+                f"no part of the request body arrived for {timeout:g} s (MOJU_BODY_TIMEOUT) "
+                f"after {received} bytes; the upload was dropped. Send the whole body without "
+                "pausing"
+            )
         received += len(chunk)
         if received > limit:
-            raise _too_large(f"more than {limit}", limit)
+            raise too_large(f"more than {limit}", limit)
         yield chunk
 
 
@@ -99,7 +124,8 @@ def parse_params(value: Any) -> SolverParams:
             f'params must be a JSON object such as {{"max_iter": 100}}, got {type(value).__name__}'
         )
     try:
-        return SolverParams.model_validate(value)
+        # Strict: "5" and true are not numbers (a client that sends them has a bug to fix).
+        return SolverParams.model_validate(value, strict=True)
     except ValidationError as exc:
         raise InvalidInput(describe_errors(exc.errors(), parameters_at=None)) from None
 
@@ -116,6 +142,8 @@ def _params_from_form(text: str | None) -> SolverParams:
         ) from None
     except RecursionError:
         raise InvalidInput(_TOO_DEEP.format(what="the 'params' field")) from None
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits
+        raise InvalidInput(f"the 'params' field cannot be read: {exc}") from None
     return parse_params(value)
 
 
@@ -146,6 +174,7 @@ def _read_file(upload: UploadFile, settings: Settings) -> tuple[Measurements, st
         format=file_format,
         max_points=settings.max_points,
         max_frames=settings.max_frames,
+        admit=functools.partial(_admit, limit=settings.worker_memory_bytes),
     )
     return measurements, file_format
 
@@ -153,8 +182,9 @@ def _read_file(upload: UploadFile, settings: Settings) -> tuple[Measurements, st
 async def _from_multipart(request: Request, settings: Settings) -> Submission:
     parser = MultiPartParser(
         request.headers,
-        _limited_stream(request, settings.max_upload_bytes),
-        max_files=1,
+        _limited_stream(request, settings.max_upload_bytes, timeout=settings.body_timeout),
+        # 'file', plus 'params' sent as a file part (curl -F params=@p.json).
+        max_files=2,
         # 'params', plus room for a 'file' sent as text so that it gets a clear message.
         max_fields=2,
     )
@@ -179,7 +209,13 @@ async def _from_multipart(request: Request, settings: Settings) -> Submission:
             )
         params_field = form.get("params")
         if isinstance(params_field, UploadFile):
-            params_field = (await params_field.read()).decode("utf-8", errors="replace")
+            text = await params_field.read(MAX_PARAMS_BYTES + 1)
+            if len(text) > MAX_PARAMS_BYTES:
+                raise InvalidInput(
+                    f"the 'params' field is longer than {MAX_PARAMS_BYTES} bytes; send the "
+                    'parameters as a flat JSON object such as {"max_iter": 100}'
+                )
+            params_field = text.decode("utf-8", errors="replace")
         params = _params_from_form(params_field)
         measurements, file_format = await anyio.to_thread.run_sync(_read_file, upload, settings)
         size = upload.size or 0
@@ -208,23 +244,47 @@ def _measurements_from_json(body: TracksBody) -> Measurements:
     return Measurements(W=W, rotations=rotations, ground_truth=truth, visibility=visibility)
 
 
-async def _from_json(request: Request, settings: Settings) -> Submission:
-    body = bytearray()
-    async for chunk in _limited_stream(request, settings.max_upload_bytes):
-        body += chunk
+def _json_too_large(size: int | str, limit: int) -> UploadTooLarge:
+    return UploadTooLarge(
+        f"the JSON body is {size} bytes; this server reads JSON bodies of at most {limit} "
+        f"bytes ({_mebibytes(limit)}, MOJU_MAX_JSON_BYTES): send larger inputs as a file, "
+        "e.g. an npz upload (multipart/form-data: curl -F file=@tracks.npz)"
+    )
+
+
+def _parse_json_body(body: bytearray) -> tuple[TracksBody, Measurements]:
+    """Parse and validate a JSON body (blocking, and about 16 times its size in memory: run
+    in a worker thread, on a body of at most MOJU_MAX_JSON_BYTES)."""
     try:
         value = json.loads(body)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InvalidInput(f"the body is not valid JSON ({exc}); {_HOW_TO_SEND}") from None
     except RecursionError:
         raise InvalidInput(_TOO_DEEP.format(what="the JSON body")) from None
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits
+        raise InvalidInput(f"the JSON body cannot be read: {exc}; {_HOW_TO_SEND}") from None
     if not isinstance(value, dict):
         raise InvalidInput(f"the JSON body must be an object; {_HOW_TO_SEND}")
     try:
-        parsed = TracksBody.model_validate(value)
+        # Strict: "5" or true are not numbers, "1.5" is not a coordinate.
+        parsed = TracksBody.model_validate(value, strict=True)
     except ValidationError as exc:
         raise InvalidInput(describe_errors(exc.errors(), parameters_at="params")) from None
-    measurements = await anyio.to_thread.run_sync(_measurements_from_json, parsed)
+    del value
+    return parsed, _measurements_from_json(parsed)
+
+
+async def _from_json(request: Request, settings: Settings) -> Submission:
+    limit, too_large = settings.max_json_bytes, _json_too_large
+    if settings.max_upload_bytes <= limit:
+        limit, too_large = settings.max_upload_bytes, _too_large
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > limit:
+        raise too_large(int(declared), limit)
+    body = bytearray()
+    async for chunk in _limited_stream(request, limit, too_large, settings.body_timeout):
+        body += chunk
+    parsed, measurements = await anyio.to_thread.run_sync(_parse_json_body, body)
     n_frames, n_points = measurements.n_frames, measurements.n_points
     if n_points > settings.max_points or n_frames > settings.max_frames:
         raise UploadTooLarge(
@@ -323,16 +383,30 @@ def check_params_fit(
             )
 
 
+def _memory_problem(n_frames: int, n_points: int, limit: int) -> str | None:
+    needed = estimate_memory_bytes(n_frames, n_points)
+    if needed <= limit:
+        return None
+    return (
+        f"{n_frames} frames x {n_points} points would need about "
+        f"{describe_bytes(needed)} to solve; this server's workers allow "
+        f"{describe_bytes(limit)} per job (MOJU_WORKER_MEMORY_BYTES): subsample the points "
+        "or frames"
+    )
+
+
+def _admit(n_frames: int, n_points: int, *, limit: int) -> None:
+    """The memory check, made by the file readers from the headers before reading data."""
+    problem = _memory_problem(n_frames, n_points, limit)
+    if problem is not None:
+        raise MeasurementTooLarge(problem)
+
+
 def check_memory(summary: InputSummary, limit: int) -> None:
     """Refuse a job whose estimated solver memory exceeds ``limit`` (HTTP 413)."""
-    needed = estimate_memory_bytes(summary.frames, summary.points)
-    if needed > limit:
-        raise UploadTooLarge(
-            f"{summary.frames} frames x {summary.points} points would need about "
-            f"{describe_bytes(needed)} to solve; this server's workers allow "
-            f"{describe_bytes(limit)} per job (MOJU_WORKER_MEMORY_BYTES): subsample the points "
-            "or frames"
-        )
+    problem = _memory_problem(summary.frames, summary.points, limit)
+    if problem is not None:
+        raise UploadTooLarge(problem)
 
 
 async def read_submission(request: Request, settings: Settings) -> Submission:

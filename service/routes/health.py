@@ -9,6 +9,7 @@ from service import queueing
 from service.deps import ServicesDep
 from service.errors import NotReady
 from service.schemas import ErrorBody, Health
+from service.serve_status import read_down
 
 router = APIRouter(tags=["health"])
 
@@ -30,22 +31,27 @@ async def health() -> Health:
 @router.get(
     "/readyz",
     operation_id="ready",
-    summary="Readiness: Redis reachable and a worker registered",
+    summary="Readiness: Redis reachable, a worker registered, nothing restarting",
     description=(
-        "200 when Redis answers and at least one worker listens on the job queue; 503 with "
-        "the reason otherwise (jobs would be accepted but never run).\n\n"
+        "200 when Redis answers, at least one worker listens on the job queue and (under "
+        "`moju serve`) none of its processes is down; 503 with the reason otherwise: Redis "
+        "unreachable, no worker (jobs would be accepted but never run), or which process of "
+        "`moju serve` died and when it will be started again.\n\n"
         "    curl http://127.0.0.1:8000/readyz"
     ),
     response_model=Health,
     responses={503: {"model": ErrorBody, "description": "Not ready; the detail says why."}},
 )
 def ready(services: ServicesDep) -> Health:
-    """Redis answers and a worker is registered on the queue."""
+    """Redis answers, a worker is registered on the queue and nothing is restarting."""
     try:
         services.redis.ping()
         workers = queueing.count_workers(services.redis, services.settings)
+        down = read_down(services.redis, services.settings.queue_name)
     except RedisError as exc:
         raise NotReady(f"Redis is unreachable ({type(exc).__name__}: {exc})") from None
+    if down:
+        raise NotReady(f"down under moju serve: {'; '.join(down)}")
     if workers == 0:
         raise NotReady(
             f"no worker is registered on queue {services.settings.queue_name!r}: start one "

@@ -80,7 +80,7 @@ def load_record(services: Services, job_id: UUID, owner: str) -> JobRecord:
 
     Another key's job is not found either: callers cannot even learn that it exists.
     """
-    record = services.store.get(job_id)
+    record = services.store.get(job_id, owner=owner)
     if record is None or record.owner != owner:
         raise JobNotFound(job_id)
     return record
@@ -88,7 +88,7 @@ def load_record(services: Services, job_id: UUID, owner: str) -> JobRecord:
 
 async def load_record_async(services: Services, job_id: UUID, owner: str) -> JobRecord:
     """:func:`load_record` for ``async def`` routes."""
-    record = await services.store.get_async(job_id)
+    record = await services.store.get_async(job_id, owner)
     if record is None or record.owner != owner:
         raise JobNotFound(job_id)
     return record
@@ -138,7 +138,9 @@ _SUBMIT_BODY: dict[str, Any] = {
         "required": True,
         "description": (
             "Either a measurement file (multipart/form-data) or, for small inputs, the tracks "
-            "as JSON. The body may not exceed MOJU_MAX_UPLOAD_BYTES."
+            "as JSON. The body may not exceed MOJU_MAX_UPLOAD_BYTES (a JSON body "
+            "MOJU_MAX_JSON_BYTES), and must keep arriving: a pause of MOJU_BODY_TIMEOUT "
+            "seconds drops it with 408."
         ),
         "content": {
             "multipart/form-data": {
@@ -216,9 +218,16 @@ _SUBMIT_BODY: dict[str, Any] = {
                 }
             },
         },
+        408: {
+            "model": ErrorBody,
+            "description": "The body stopped arriving for MOJU_BODY_TIMEOUT seconds.",
+        },
         413: {
             "model": ErrorBody,
-            "description": "The upload, or the memory its job would need, exceeds a limit.",
+            "description": (
+                "The upload (or a JSON body), or the memory its job would need, exceeds a "
+                "limit; checked from the file's headers before its data is read."
+            ),
         },
         415: {"model": ErrorBody, "description": "Neither multipart/form-data nor JSON."},
         422: {

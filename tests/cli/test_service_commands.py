@@ -8,6 +8,7 @@ directory still knows the jobs (Redis's append-only file).
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -29,6 +30,7 @@ from service.processes import descendants, free_port
 from worker.runner import INTERRUPTED
 
 REPO = Path(__file__).resolve().parents[2]
+TERMINAL = ("finished", "failed", "cancelled")
 LONG_PARAMS = ["max_iter=10000", "tol=0.0", "rho_growth=1.0005", "rho_max=1e12"]
 
 
@@ -40,9 +42,11 @@ def moju_command() -> list[str]:
     return [sys.executable, "-c", "import sys; from moju_cli.main import cli; sys.exit(cli())"]
 
 
-def service_environment() -> dict[str, str]:
-    """This environment without MOJU_* settings (so ``moju serve`` embeds its own Redis)."""
+def service_environment(**extra: str) -> dict[str, str]:
+    """This environment without MOJU_* settings (so ``moju serve`` embeds its own Redis),
+    plus ``extra``."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("MOJU_")}
+    env.update(extra)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
     return env
 
@@ -55,10 +59,24 @@ def alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[-1].split()[0] != "Z"
 
 
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def _parent(pid: int) -> int:
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()[1])
+    except OSError:
+        return -1
+
+
 class Served:
     """A ``moju serve`` process on a free port."""
 
-    def __init__(self, data_dir: Path, log_path: Path) -> None:
+    def __init__(self, data_dir: Path, log_path: Path, **env: str) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log_path = log_path
@@ -66,7 +84,7 @@ class Served:
             self.process = subprocess.Popen(
                 [*moju_command(), "serve", "--port", str(self.port), "--workers", "1",
                  "--data-dir", str(data_dir), "--grace", "1"],
-                env=service_environment(),
+                env=service_environment(**env),
                 cwd=REPO,
                 stdout=log,
                 stderr=subprocess.STDOUT,
@@ -84,6 +102,33 @@ class Served:
 
     def log(self) -> str:
         return self.log_path.read_text(errors="replace")
+
+    def child(self, marker: str) -> int:
+        """PID of the one child whose command line contains ``marker``."""
+        found = [
+            pid
+            for pid in descendants(self.process.pid)
+            if alive(pid) and marker in _cmdline(pid) and _parent(pid) == self.process.pid
+        ]
+        assert len(found) == 1, f"{marker}: {found}"
+        return found[0]
+
+    def wait_for_log(self, text: str, timeout: float = 60) -> None:
+        deadline = time.monotonic() + timeout
+        while text not in self.log():
+            assert time.monotonic() < deadline, f"never logged {text!r}:\n{self.log()}"
+            time.sleep(0.1)
+
+    def wait_ready(self, timeout: float = 60) -> None:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                if httpx.get(f"{self.url}/readyz", timeout=2).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            assert time.monotonic() < deadline, f"not ready again:\n{self.log()}"
+            time.sleep(0.2)
 
     def stop(self, sig: int = signal.SIGINT, timeout: float = 30) -> int:
         self.process.send_signal(sig)
@@ -154,6 +199,94 @@ def test_serve_submit_and_ctrl_c_leaves_no_process(tmp_path: Path) -> None:
     finally:
         if again.process.poll() is None:
             again.process.kill()
+
+
+#: A few seconds of work on the 300-point face: long enough to be killed mid-way.
+MEDIUM_PARAMS = {"max_iter": 1500, "tol": 0.0, "rho_growth": 1.01, "rho_max": 1e12}
+
+
+def _submit(url: str, path: Path, params: dict) -> str:
+    with open(path, "rb") as handle:
+        answer = httpx.post(
+            f"{url}/v1/jobs",
+            files={"file": (path.name, handle)},
+            data={"params": json.dumps(params)},
+            timeout=30,
+        )
+    assert answer.status_code == 202, answer.text
+    return answer.json()["id"]
+
+
+def _wait_job(url: str, job_id: str, done, timeout: float = 120) -> dict:
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            job = httpx.get(f"{url}/v1/jobs/{job_id}", timeout=5).json()
+            if done(job):
+                return job
+        except httpx.TransportError:
+            pass  # the API is restarting
+        assert time.monotonic() < deadline, f"job {job_id} never got there"
+        time.sleep(0.1)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="process checks use /proc")
+def test_serve_restarts_killed_worker_redis_and_api(tmp_path: Path) -> None:
+    """SIGKILL of each child of ``moju serve`` in turn: it comes back, no job is lost."""
+    path = write_measurements(
+        tmp_path / "w.npz", Measurements(W=make_sequence("face1", n_points=300).W)
+    )
+    fast_leases = {"MOJU_HEARTBEAT_INTERVAL": "0.5", "MOJU_HEARTBEAT_TTL": "2"}
+    served = Served(tmp_path / "data", tmp_path / "serve.log", **fast_leases)
+    seen: set[int] = set()
+    try:
+        # A worker killed mid-job (as the out-of-memory killer would): its orphaned work
+        # horse is killed, a new worker starts, and the job runs again and finishes.
+        running = _submit(served.url, path, MEDIUM_PARAMS)
+        queued = _submit(served.url, path, {"max_iter": 20})
+        _wait_job(served.url, running, lambda j: (j["progress"] or {}).get("iteration", 0) >= 3)
+        worker_pid = served.child("-m worker")
+        seen |= {worker_pid, *descendants(worker_pid)}
+        os.kill(worker_pid, signal.SIGKILL)
+        served.wait_for_log(f"worker 1 (pid {worker_pid}) exited with signal SIGKILL")
+        served.wait_for_log("left behind by worker 1")
+        served.wait_for_log("worker 1 started again")
+        again = _wait_job(served.url, running, lambda j: j["status"] in TERMINAL)
+        assert (again["status"], again["attempts"]) == ("finished", 2), again
+        assert _wait_job(served.url, queued, lambda j: j["status"] in TERMINAL)["status"] == (
+            "finished"
+        )
+
+        # Redis killed: started again on the same port from its append-only file.
+        redis_pid = served.child("redis-server")
+        seen.add(redis_pid)
+        os.kill(redis_pid, signal.SIGKILL)
+        served.wait_for_log(f"Redis (pid {redis_pid}) exited with signal SIGKILL")
+        served.wait_for_log("Redis started again")
+        served.wait_ready()
+        assert httpx.get(f"{served.url}/v1/jobs/{running}").json()["status"] == "finished"
+        after_redis = _submit(served.url, path, {"max_iter": 20})
+        job = _wait_job(served.url, after_redis, lambda j: j["status"] in TERMINAL)
+        assert job["status"] == "finished", job
+
+        # The API killed: started again; the jobs are still there.
+        api_pid = served.child("uvicorn")
+        seen.add(api_pid)
+        os.kill(api_pid, signal.SIGKILL)
+        served.wait_for_log(f"the API (pid {api_pid}) exited with signal SIGKILL")
+        served.wait_for_log("the API started again")
+        served.wait_ready()
+        after_api = _submit(served.url, path, {"max_iter": 20})
+        job = _wait_job(served.url, after_api, lambda j: j["status"] in TERMINAL)
+        assert job["status"] == "finished", job
+        assert httpx.get(f"{served.url}/v1/jobs").json()["total"] == 4
+
+        seen |= descendants(served.process.pid)
+        assert served.stop(signal.SIGINT) == 0, served.log()
+        assert not {pid for pid in seen if alive(pid)}
+    finally:
+        if served.process.poll() is None:
+            served.process.kill()
 
 
 def test_submit_refuses_bad_parameters_before_uploading(tmp_path: Path) -> None:

@@ -87,6 +87,35 @@ def _external_link_h5(h5: h5py.File) -> None:
     h5["W"] = h5py.ExternalLink("/etc/passwd", "/W")
 
 
+def _soft_link_through_external_h5(h5: h5py.File) -> None:
+    h5["elsewhere"] = h5py.ExternalLink("/etc/passwd", "/group")
+    h5["W"] = h5py.SoftLink("/elsewhere/W")
+
+
+def _fill_value_bomb_h5(h5: h5py.File) -> None:
+    """2000 frames x 50000 points of fill value: a few kB on disk, 1.6 GB once read."""
+    h5.create_dataset("W", shape=(4000, 50_000), dtype="f8", chunks=(100, 1000), fillvalue=1.0)
+
+
+def _zeros_npz(shape: tuple[int, int]) -> bytes:
+    """An npz of zeros, compressed while written (never held in memory uncompressed)."""
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        header, {"descr": "<f8", "fortran_order": False, "shape": shape}
+    )
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        with archive.open("W.npy", "w", force_zip64=True) as member:
+            member.write(header.getvalue())
+            row = bytes(8 * shape[1])
+            for _ in range(shape[0]):
+                member.write(row)
+    return buffer.getvalue()
+
+
+HUGE_INTEGER = "9" * 5000  # more digits than Python converts from text by default
+
+
 def _tracks_csv(n_frames: int = 3, n_points: int = 4, broken: str | None = None) -> str:
     lines = ["frame,point,x,y"]
     for frame in range(n_frames):
@@ -180,6 +209,72 @@ CASES: list[tuple[str, Callable[[], dict], int, tuple[str, ...]]] = [
         lambda: _file(_h5(_external_link_h5), "w.h5"),
         422,
         ("link to another file",),
+    ),
+    (
+        "HDF5 soft link that goes through a link to another file",
+        lambda: _file(_h5(_soft_link_through_external_h5), "w.h5"),
+        422,
+        ("link to another file",),
+    ),
+    (
+        "HDF5 of fill value needing more memory than a worker has",
+        lambda: _file(_h5(_fill_value_bomb_h5), "w.h5"),
+        413,
+        ("2000 frames x 50000 points", "MOJU_WORKER_MEMORY_BYTES"),
+    ),
+    (
+        "compressed npz of zeros needing more memory than a worker has",
+        lambda: _file(_zeros_npz((4000, 2000))),
+        413,
+        ("2000 frames x 2000 points", "MOJU_WORKER_MEMORY_BYTES"),
+    ),
+    (
+        "one-line CSV",
+        lambda: _file(b"frame,point,x,y" + b",0" * 100_000, "t.csv"),
+        422,
+        ("line 1", "longer than 4096 bytes"),
+    ),
+    (
+        "huge integer in the params field",
+        lambda: _file(_npz(W=GOOD_W), params='{"max_iter": ' + HUGE_INTEGER + "}"),
+        422,
+        ("'params' field cannot be read",),
+    ),
+    (
+        "huge integer in a JSON body",
+        lambda: _json_body('{"tracks": [[[0, 0]]], "params": {"seed": ' + HUGE_INTEGER + "}}"),
+        422,
+        ("JSON body cannot be read",),
+    ),
+    (
+        "huge but readable integer as a coordinate",
+        lambda: _json_body('{"tracks": [[[0, ' + "9" * 400 + "]]]}"),
+        422,
+        ("tracks",),
+    ),
+    (
+        "number given as a string",
+        lambda: _file(_npz(W=GOOD_W), params={"max_iter": "5"}),
+        422,
+        ("parameter 'max_iter'", "valid integer"),
+    ),
+    (
+        "boolean given as a number",
+        lambda: _file(_npz(W=GOOD_W), params={"seed": True}),
+        422,
+        ("parameter 'seed'", "valid integer"),
+    ),
+    (
+        "boolean given as a number in a JSON body",
+        lambda: _json_body('{"tracks": [[[0, 0]]], "params": {"rho": true}}'),
+        422,
+        ("parameter 'rho'",),
+    ),
+    (
+        "JSON body over its own limit",
+        lambda: _json_body('{"tracks": [' + ",".join(["[[0.5, 0.5]]"] * 10_000) + "]}"),
+        413,
+        ("MOJU_MAX_JSON_BYTES", "npz"),
     ),
     (
         "truncated HDF5",
@@ -309,7 +404,7 @@ CASES: list[tuple[str, Callable[[], dict], int, tuple[str, ...]]] = [
     ),
     (
         "deeply nested JSON body",
-        lambda: _json_body('{"tracks": ' + "[" * 100_000 + "]" * 100_000 + "}"),
+        lambda: _json_body('{"tracks": ' + "[" * 30_000 + "]" * 30_000 + "}"),
         422,
         ("the JSON body nests",),
     ),
@@ -336,7 +431,14 @@ CASES: list[tuple[str, Callable[[], dict], int, tuple[str, ...]]] = [
 
 @pytest.fixture
 def guarded(settings: Settings) -> Iterator:
-    limited = settings.model_copy(update={"max_upload_bytes": 2**20, "max_points": 50_000})
+    limited = settings.model_copy(
+        update={
+            "max_upload_bytes": 2**20,
+            "max_json_bytes": 65536,
+            "max_points": 50_000,
+            "worker_memory_bytes": 2**30,
+        }
+    )
     from service.app import create_app
 
     with TestClient(create_app(limited)) as client:

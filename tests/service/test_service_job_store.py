@@ -161,3 +161,20 @@ def test_sweep_deletes_files_of_expired_jobs_only(store: JobStore, tmp_path: Pat
     remaining = {path.name for path in (tmp_path / "jobs").iterdir()}
     assert remaining == {str(live), str(young), "not-a-job"}
     assert store.connection.zcard(INDEX_KEY) == 1  # index entries of both gone records pruned
+
+
+def test_another_owners_job_is_refused_before_it_is_decoded(
+    store: JobStore, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Refusing another key's job costs what an unknown id costs: no record is decoded."""
+    import service.job_store as job_store
+
+    job_id = add(store, new_record().owned_by("key-aaaaaaaaaaaaaaaa"))
+    decoded = []
+    real_decode = job_store._decode
+    monkeypatch.setattr(job_store, "_decode", lambda *a: decoded.append(a) or real_decode(*a))
+    assert store.get(job_id, owner="key-bbbbbbbbbbbbbbbb") is None
+    assert store.get(job_id, owner="") is None
+    assert decoded == []
+    assert store.get(job_id, owner="key-aaaaaaaaaaaaaaaa") is not None
+    assert decoded  # its own owner gets it
