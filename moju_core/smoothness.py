@@ -47,6 +47,11 @@ SELECTION_POINTS = 400
 #: Loop controls the trial solves take from the schema's defaults, not from the caller: the rule
 #: was set with them, and a solve asked to run long (e.g. ``max_iter=10_000, rho_growth=1.0005``)
 #: must not run its four trial solves that long too.
+#: Frames the trial solves use: a contiguous run of this many from the middle of a longer
+#: sequence. The weight is a property of how fast the shapes change from frame to frame
+#: relative to the camera, which a stretch of the sequence shows as well as the whole; this
+#: keeps the choice's cost independent of F.
+SELECTION_FRAMES = 150
 TRIAL_LOOP_CONTROL = {
     name: SolverParams.model_fields[name].default
     for name in ("max_iter", "tol", "rho", "rho_max", "rho_growth")
@@ -97,6 +102,11 @@ def choose_smoothness(
         tracks = tracks[:, :, np.sort(rng.choice(n_points, SELECTION_POINTS, replace=False))]
     measurements = tracks.reshape(2 * n_frames, -1)
     signal = signal_basis @ (signal_basis.T @ measurements)
+    if n_frames > SELECTION_FRAMES:
+        first = (n_frames - SELECTION_FRAMES) // 2
+        signal = signal[2 * first : 2 * (first + SELECTION_FRAMES)]
+        rotations = rotations[first : first + SELECTION_FRAMES]
+        n_frames = SELECTION_FRAMES
     energy = float(np.mean(signal**2))
     allowed_excess = DEFORMATION_ALLOWANCE * non_rigid_energy(
         np.linalg.svd(signal, compute_uv=False)

@@ -165,3 +165,30 @@ def test_the_temporal_prior_and_the_free_mean_shape_are_resolved_per_method(face
     assert bmm.extras["smoothness_trials"] == []
     chosen = reconstruct(face.W, SolverParams(smoothness=3.0, max_iter=5), rotations=face.rotations)
     assert chosen.params.smoothness == 3.0 and chosen.extras["smoothness_trials"] == []
+
+
+@pytest.mark.parametrize(("n_frames", "n_points"), [(60, 15), (120, 30)])
+@pytest.mark.parametrize("rotations", ["known", "auto"])
+def test_long_sequences_of_few_points_solve_with_the_defaults(n_frames, n_points, rotations):
+    # F > 3P: every F x F or 3P x 3P choice of the solver is exercised on the tall side.
+    data = make_sequence("face4", n_frames=n_frames, n_points=n_points, seed=1)
+    result = reconstruct(
+        data.W,
+        SolverParams(rotations=rotations),
+        rotations=data.rotations if rotations == "known" else None,
+    )
+    assert result.shapes.shape == (n_frames, n_points, 3)
+    assert result.params.n_groups == 1  # too few points for local groups
+    assert e3d(result.shapes, data.shapes) < 0.1
+
+
+def test_a_transposed_looking_input_gives_a_result_or_a_clear_message():
+    # 5000 rows of 10 columns: read as 2500 frames of 10 points.
+    W = np.random.default_rng(0).standard_normal((5000, 10))
+    rotations = make_sequence("face4", n_frames=2500, n_points=10).rotations
+    try:
+        result = reconstruct(W, SolverParams(max_iter=30), rotations=rotations)
+    except MeasurementError as error:
+        assert "point" in str(error) or "frame" in str(error)
+    else:
+        assert result.shapes.shape == (2500, 10, 3) and np.isfinite(result.shapes).all()
