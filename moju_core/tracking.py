@@ -52,6 +52,7 @@ from moju_core.video import DEFAULT_LIMITS, VideoLimits, check_clip, open_video,
 __all__ = [
     "DEFAULT_STEP",
     "Tracks",
+    "count_grid_points",
     "TrackingProgress",
     "textured_region",
     "track_frames",
@@ -173,6 +174,12 @@ def _grid(mask: np.ndarray, step: int) -> np.ndarray:
     )
     keep = mask[ys, xs]
     return np.stack([xs[keep], ys[keep]], axis=1).astype(np.float64)
+
+
+def count_grid_points(mask: np.ndarray, step: int = DEFAULT_STEP) -> int:
+    """Number of tracks a run starts with: grid points every ``step`` pixels on ``mask``
+    (H, W) bool."""
+    return int(_grid(np.asarray(mask, dtype=bool), step).shape[0])
 
 
 class _Flow:
@@ -502,7 +509,8 @@ def solvable_tracks(tracks: Tracks) -> Tracks:
     :data:`moju_core.validation.MIN_FRAMES_PER_POINT` frames (a track lost right after the
     first frame gives no depth), in their original order.
 
-    Raises VideoError when fewer than :data:`MIN_POINTS_PER_FRAME` tracks are left.
+    Raises VideoError when fewer than :data:`MIN_POINTS_PER_FRAME` tracks are left, in all or
+    in some frame (frames are numbered from the first tracked one).
     """
     keep = np.count_nonzero(tracks.visibility, axis=0) >= MIN_FRAMES_PER_POINT
     if np.count_nonzero(keep) < MIN_POINTS_PER_FRAME:
@@ -510,6 +518,16 @@ def solvable_tracks(tracks: Tracks) -> Tracks:
             f"only {int(np.count_nonzero(keep))} of {tracks.n_points} tracks were followed "
             f"beyond the first frame; a reconstruction needs at least {MIN_POINTS_PER_FRAME}. "
             "Check the mask, use a smaller step or a video with less motion between frames"
+        )
+    thin = np.flatnonzero(
+        np.count_nonzero(tracks.visibility[:, keep], axis=1) < MIN_POINTS_PER_FRAME
+    )
+    if thin.size:
+        raise VideoError(
+            f"fewer than {MIN_POINTS_PER_FRAME} tracks are left from frame {thin[0]} on (of "
+            f"{tracks.n_frames} tracked; the tracker lost the others), too few for a camera: "
+            f"reconstruct the frames before it (moju: --end {thin[0]}), or use a video with "
+            "less motion between frames"
         )
     if keep.all():
         return tracks

@@ -34,6 +34,7 @@ __all__ = [
     "VideoLimits",
     "open_video",
     "is_video_source",
+    "sniff_video",
     "read_mask",
 ]
 
@@ -133,6 +134,19 @@ def is_video_source(path: str | os.PathLike) -> bool:
     """True for a folder (of images) or a file named as a video (:data:`VIDEO_EXTENSIONS`)."""
     path = Path(path)
     return path.is_dir() or path.suffix.lower() in VIDEO_EXTENSIONS
+
+
+def sniff_video(head: bytes) -> str | None:
+    """The extension (of :data:`VIDEO_EXTENSIONS`) of a file starting with ``head`` (its first
+    12 bytes or more): ``.mp4`` (ISO media, ``ftyp`` box), ``.webm`` (EBML) or ``.avi``
+    (RIFF AVI); None for anything else."""
+    if head[4:8] == b"ftyp":
+        return ".mp4"
+    if head[:4] == b"\x1a\x45\xdf\xa3":
+        return ".webm"
+    if head[:4] == b"RIFF" and head[8:12] == b"AVI ":
+        return ".avi"
+    return None
 
 
 def _name(path: Path) -> str:
