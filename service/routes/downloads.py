@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pathlib
 import zipfile
 from collections.abc import Iterator
 from typing import Annotated, Literal
@@ -18,6 +19,7 @@ from service.routes.jobs import UNAUTHORIZED, load_record
 from service.schemas import ErrorBody, JobRecord, Metrics
 from service.states import JobStatus
 from service.storage import JobFilesMissing
+from service.track_overlay import overlay_png
 
 router = APIRouter(
     prefix="/v1/jobs",
@@ -289,8 +291,17 @@ def _video_record(services: Services, job_id: UUID, owner: str) -> JobRecord:
 def download_tracks(job_id: JobId, services: ServicesDep, caller: Caller) -> FileResponse:
     """The tracks of a video job."""
     record = _video_record(services, job_id, caller)
+    path = _tracks_path(services, record)
+    return FileResponse(
+        path, media_type="application/octet-stream", filename=f"moju-{job_id}-tracks.npz"
+    )
+
+
+def _tracks_path(services: Services, record: JobRecord) -> pathlib.Path:
+    """The job's tracks file, or 409 saying why there is none yet."""
+    job_id = record.id
     try:
-        path = services.storage.tracks_file(job_id)
+        return services.storage.tracks_file(job_id)
     except JobFilesMissing:
         if record.status is JobStatus.FAILED:
             raise JobNotFinished(
@@ -300,9 +311,6 @@ def download_tracks(job_id: JobId, services: ServicesDep, caller: Caller) -> Fil
             f"job {job_id} is {record.status.value} and its tracking stage has not ended; "
             f"wait until its progress stage is past 'tracking' (GET /v1/jobs/{job_id})"
         ) from None
-    return FileResponse(
-        path, media_type="application/octet-stream", filename=f"moju-{job_id}-tracks.npz"
-    )
 
 
 @router.get(
@@ -311,20 +319,33 @@ def download_tracks(job_id: JobId, services: ServicesDep, caller: Caller) -> Fil
     summary="The first frame of a video job",
     description=(
         "The video's first frame as PNG, decoded when it was uploaded: the frame the tracks "
-        "start on (their pixel coordinates are this image's). 404 for a job that was not a "
-        "video upload.\n\n"
-        f"    curl -o first-frame.png {_EXAMPLE}/first-frame.png"
+        "start on (their pixel coordinates are this image's). With `overlay=tracks`, the "
+        "tracks are drawn on it (each one's path over the frames, in green, with a red dot "
+        "where it was last seen; 409 before the tracking stage has ended). 404 for a job "
+        "that was not a video upload.\n\n"
+        f"    curl -o first-frame.png '{_EXAMPLE}/first-frame.png?overlay=tracks'"
     ),
-    response_class=FileResponse,
+    response_class=Response,
     responses={
         200: {
             "description": "The PNG image.",
             "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}},
         },
         404: {"model": ErrorBody, "description": "No such job, or not a video job."},
+        409: {"model": ErrorBody, "description": "Tracks asked for before they exist."},
     },
 )
-def download_first_frame(job_id: JobId, services: ServicesDep, caller: Caller) -> FileResponse:
-    """The first frame of a video job."""
-    _video_record(services, job_id, caller)
-    return FileResponse(services.storage.first_frame_file(job_id), media_type="image/png")
+def download_first_frame(
+    job_id: JobId,
+    services: ServicesDep,
+    caller: Caller,
+    overlay: Annotated[
+        Literal["none", "tracks"], Query(description="Draw the tracks on the frame.")
+    ] = "none",
+) -> Response:
+    """The first frame of a video job, with or without its tracks."""
+    record = _video_record(services, job_id, caller)
+    frame = services.storage.first_frame_file(job_id)
+    if overlay == "none":
+        return FileResponse(frame, media_type="image/png")
+    return Response(overlay_png(frame, _tracks_path(services, record)), media_type="image/png")

@@ -87,8 +87,10 @@ def test_video_job_tracks_then_solves_and_serves_the_tracks(
     assert first.status_code == 200 and first.headers["content-type"] == "image/png"
     image = cv2.imdecode(np.frombuffer(first.content, np.uint8), cv2.IMREAD_COLOR)
     assert image.shape == (SIZE[1], SIZE[0], 3)
-    early = client.get(f"/v1/jobs/{job_id}/tracks.npz")
-    assert early.status_code == 409 and "tracking stage has not ended" in early.json()["detail"]
+    for path in ("tracks.npz", "first-frame.png?overlay=tracks"):
+        early = client.get(f"/v1/jobs/{job_id}/{path}")
+        assert early.status_code == 409, path
+        assert "tracking stage has not ended" in early.json()["detail"]
 
     store = JobStore(redis_client, retention_seconds=settings.result_ttl)
     stages = []
@@ -128,6 +130,16 @@ def test_video_job_tracks_then_solves_and_serves_the_tracks(
     with np.load(io.BytesIO(result.content), allow_pickle=False) as data:
         assert data["shapes"].shape == (N_FRAMES, W.shape[1], 3)
         np.testing.assert_array_equal(data["visibility"], visibility)
+    drawn = client.get(f"/v1/jobs/{job_id}/first-frame.png", params={"overlay": "tracks"})
+    assert drawn.status_code == 200 and drawn.headers["content-type"] == "image/png"
+    overlay = cv2.imdecode(np.frombuffer(drawn.content, np.uint8), cv2.IMREAD_COLOR)
+    assert overlay.shape == image.shape
+    # Red dots where the tracks were last seen; the rest of the frame around the object kept.
+    paths = W.reshape(N_FRAMES, 2, -1).transpose(2, 0, 1)  # (P, F, 2)
+    ends = [path[np.isfinite(path[:, 0])][-1] for path in paths]
+    x, y = np.round(np.array(ends)).astype(int).T
+    assert np.all(overlay[y, x] == [40, 40, 240])  # BGR
+    np.testing.assert_array_equal(overlay[0, 0], image[0, 0])
     ply = PlyData.read(io.BytesIO(client.get(f"/v1/jobs/{job_id}/frames/0.ply").content))
     vertex = ply["vertex"]
     np.testing.assert_array_equal(
