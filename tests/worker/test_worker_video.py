@@ -142,3 +142,18 @@ def test_cancel_during_tracking_stops_the_job(store, storage, settings, rendered
     directory = settings.data_dir / "jobs" / str(job_id)
     assert not (directory / TRACKS_NAME).exists() and not (directory / INPUT_NAME).exists()
     assert not storage.has_result(job_id)
+
+
+def test_a_retry_discards_the_tracks_but_keeps_the_upload(
+    store, storage, settings, rendered, tmp_path
+) -> None:
+    job_id = add_video_job(store, storage, rendered, tmp_path)
+    assert execute(job_id, store, storage, settings)["status"] == "finished"
+    removed = storage.discard_outputs(job_id)
+    assert {"tracks.npz", "input.npz", "result.h5"} <= set(removed)
+    directory = settings.data_dir / "jobs" / str(job_id)
+    assert sorted(p.name for p in directory.iterdir()) == [
+        "first_frame.png", "mask.png", "video.mp4",
+    ]  # fmt: skip
+    video, mask = storage.video_files(job_id)
+    assert video.name == "video.mp4" and mask is not None
