@@ -476,6 +476,11 @@ def reconstruct(
     video = is_video_source(input_file)
     _check_video_options(video, mask=mask, step=step, start=start, end=end)
     params = _solver_params(_pop_solver_values(solver_values))
+    if video and params.rotations == "known":
+        raise click.UsageError(
+            "--rotations known needs camera rotations, which a video does not have; use "
+            "--rotations auto (the default) to estimate them"
+        )
     outputs = _Outputs()
     tracks_path = None
     with _interruptible(outputs):

@@ -226,3 +226,11 @@ def test_reconstruct_refuses_tracking_options_for_a_measurement_file(tmp_path):
     assert outcome.exit_code == 2
     assert "--step only apply to a video input" in outcome.stderr
     assert not (tmp_path / "r.npz").exists()
+
+
+def test_reconstruct_video_refuses_known_rotations(files, tmp_path):
+    outcome = _run("reconstruct", str(files["video"]), "-o", str(tmp_path / "r.npz"),
+                   "--rotations", "known")  # fmt: skip
+    assert outcome.exit_code == 2
+    assert "a video does not have" in outcome.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -251,3 +251,31 @@ def test_known_rotations_are_refused_for_a_video(client: TestClient, video_files
     response = post(client, video_files["video"].read_bytes(), params={"rotations": "known"})
     assert response.status_code == 422
     assert "a video has no camera rotations" in response.json()["detail"]
+
+
+def test_video_upload_through_the_api_runs_in_a_real_worker(
+    live_api: str, worker, video_files, rendered
+) -> None:
+    import httpx
+    from service_testing import wait_for
+
+    files = {
+        "file": ("clip.mp4", video_files["video"].read_bytes(), "application/octet-stream"),
+        "mask": ("mask.png", video_files["mask"].read_bytes(), "image/png"),
+    }
+    with httpx.Client(base_url=live_api, timeout=30) as client:
+        job = client.post("/v1/jobs", files=files, data={"params": '{"max_iter": 3}'}).json()
+
+        def ended():
+            record = client.get(f"/v1/jobs/{job['id']}").json()
+            return record if record["status"] in ("finished", "failed") else None
+
+        record = wait_for(ended, timeout=120, interval=0.2, message="the video job")
+        assert record["status"] == "finished", (record, worker.log())
+        tracks = client.get(f"/v1/jobs/{job['id']}/tracks.npz")
+        assert tracks.status_code == 200
+        with np.load(io.BytesIO(tracks.content), allow_pickle=False) as data:
+            n_points = data["W"].shape[1]
+        assert n_points == record["result"]["tracking"]["reconstructed"] > 0
+        frame = client.get(f"/v1/jobs/{job['id']}/viewer-data/frames/0").json()
+        assert len(frame["x"]) == n_points  # shapes for every track
