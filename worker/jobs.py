@@ -142,6 +142,10 @@ def _track(
     record: JobRecord, storage: Storage, reporter: ProgressReporter, settings: Settings
 ) -> tuple[Measurements, dict[str, Any]]:
     """The tracking stage of a video job: tracks stored, returned as solver input."""
+    import cv2  # the tracker's; only video jobs need it
+
+    # OpenCV's own thread pool is outside threadpoolctl's reach: MOJU_WORKER_THREADS too.
+    cv2.setNumThreads(settings.worker_threads)
     video, mask = storage.video_files(record.id)
     step = record.input.video.step if record.input.video is not None else DEFAULT_STEP
     started = time.perf_counter()
