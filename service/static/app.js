@@ -559,12 +559,12 @@
       $("#viewer-container"), MojuViewer.httpSource(id, undefined, authHeaders()),
     );
     state.viewer.load();
-    showFirstFrame(job);
+    showFirstFrame(job || id);
     section.scrollIntoView({ behavior: "smooth", block: "start" });
   }
 
   /** Beside the 3D shape: a video job's first frame with its tracks drawn on it. */
-  async function showFirstFrame(job) {
+  async function showFirstFrame(jobOrId) {
     const figure = $("#viewer-frame");
     const image = $("#viewer-frame-image");
     figure.hidden = true;
@@ -572,10 +572,12 @@
       URL.revokeObjectURL(image.src);
     }
     image.removeAttribute("src");
-    if (!job || job.input.format !== "video") {
-      return;
-    }
     try {
+      // Opened from the address before the job list arrived: read the job first.
+      const job = typeof jobOrId === "string" ? await api("GET", `/v1/jobs/${jobOrId}`) : jobOrId;
+      if (job.input.format !== "video") {
+        return;
+      }
       const response = await fetch(`/v1/jobs/${job.id}/first-frame.png?overlay=tracks`, {
         headers: authHeaders(),
       });
