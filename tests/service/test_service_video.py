@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import json
 import tempfile
+import zipfile
 from pathlib import Path
 from uuid import UUID
 
@@ -254,28 +255,22 @@ def test_known_rotations_are_refused_for_a_video(client: TestClient, video_files
 
 
 def test_video_upload_through_the_api_runs_in_a_real_worker(
-    live_api: str, worker, video_files, rendered
+    live_api: str, worker, video_files, tmp_path: Path
 ) -> None:
-    import httpx
-    from service_testing import wait_for
+    from service.client import MojuClient
 
-    files = {
-        "file": ("clip.mp4", video_files["video"].read_bytes(), "application/octet-stream"),
-        "mask": ("mask.png", video_files["mask"].read_bytes(), "image/png"),
-    }
-    with httpx.Client(base_url=live_api, timeout=30) as client:
-        job = client.post("/v1/jobs", files=files, data={"params": '{"max_iter": 3}'}).json()
-
-        def ended():
-            record = client.get(f"/v1/jobs/{job['id']}").json()
-            return record if record["status"] in ("finished", "failed") else None
-
-        record = wait_for(ended, timeout=120, interval=0.2, message="the video job")
-        assert record["status"] == "finished", (record, worker.log())
-        tracks = client.get(f"/v1/jobs/{job['id']}/tracks.npz")
-        assert tracks.status_code == 200
-        with np.load(io.BytesIO(tracks.content), allow_pickle=False) as data:
+    with MojuClient(live_api) as client:
+        job = client.submit(video_files["video"], {"max_iter": 3}, mask=video_files["mask"])
+        assert job.input.format == "video" and job.input.video.has_mask
+        record = client.wait(job, timeout=120)
+        assert record.status.value == "finished", (record.error, worker.log())
+        tracks = client.download_tracks(job, tmp_path / "tracks.npz")
+        with np.load(tracks, allow_pickle=False) as data:
             n_points = data["W"].shape[1]
-        assert n_points == record["result"]["tracking"]["reconstructed"] > 0
-        frame = client.get(f"/v1/jobs/{job['id']}/viewer-data/frames/0").json()
-        assert len(frame["x"]) == n_points  # shapes for every track
+        assert n_points == record.result.tracking.reconstructed > 0
+        frames = client.download_frames_zip(job, tmp_path / "frames.zip")
+        with zipfile.ZipFile(frames) as archive:
+            names = archive.namelist()
+            ply = PlyData.read(io.BytesIO(archive.read(names[0])))
+        assert len(names) == N_FRAMES
+        assert ply["vertex"].count == n_points  # shapes for every track
