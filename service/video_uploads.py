@@ -36,6 +36,7 @@ from service.settings import Settings, describe_bytes
 #: Largest mask PNG read (a 1920 x 1080 RGBA PNG without compression is about 8 MiB).
 MAX_MASK_BYTES = 16 * 2**20
 _COPY_CHUNK = 2**20
+_CLI_ADVICE = "choose a shorter part with --start and --end"
 #: The settings behind :attr:`service.settings.Settings.video_limits`, named in a refusal.
 LIMIT_SETTINGS = (
     "this server's limits: MOJU_MAX_VIDEO_WIDTH x MOJU_MAX_VIDEO_HEIGHT, "
@@ -157,7 +158,8 @@ def stage_video(
         return _stage(directory, upload, mask, extension, filename, settings)
     except VideoTooLarge as exc:
         shutil.rmtree(directory, ignore_errors=True)
-        message = str(exc)
+        # The tracker's advice names moju track's options, which an upload does not have.
+        message = str(exc).replace(_CLI_ADVICE, "cut the video shorter")
         if "MOJU_" not in message:  # the tracker's limits, as this server sets them
             message += f" ({LIMIT_SETTINGS})"
         raise VideoTooLarge(message) from None

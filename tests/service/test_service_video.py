@@ -195,7 +195,7 @@ def test_unusable_videos_are_refused_and_nothing_is_kept(
         ({"max_video_bytes": 2048}, 413, "MOJU_MAX_VIDEO_BYTES"),
         ({"max_video_width": 64}, 413, "the limit is 64 x 1080"),
         ({"max_video_height": 48}, 413, "MOJU_MAX_VIDEO_HEIGHT"),
-        ({"max_video_frames": 5}, 413, "8 frames to track, the limit is 5"),
+        ({"max_video_frames": 5}, 413, "8 frames to track, the limit is 5; cut the video"),
         ({"max_video_seconds": 0.5}, 413, "the limit is 0.5 s"),
         ({"max_points": 20}, 413, "the limit is 20 tracks (MOJU_MAX_POINTS)"),
     ],
