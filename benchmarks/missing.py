@@ -286,7 +286,7 @@ def report_lines(rows: list[dict], checks: list[dict], meta: dict) -> list[str]:
         "Visibility from `moju_core.datasets.occlusion_mask`: *structured* is a band "
         "sweeping once across the object plus tracks that end at a random frame, *random* "
         "is dropout of single entries, *combined* is the closing configuration "
-        f"({_settings_text(CLOSING)}) and a heavier mix. The solver gets W with NaN at the "
+        f"({_settings_text(CLOSING)}). The solver gets W with NaN at the "
         "hidden entries. "
         f"Sweep: known rotations, F x P {', '.join(f'{f} x {p:,}' for f, p in sizes)}, "
         "moju at every level, pta and bmm on the first seed at complete data, the closing "
