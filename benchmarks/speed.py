@@ -11,6 +11,17 @@ alike; the median is reported.
     python benchmarks/speed.py --quick     # small sizes only, to prove it runs
 
 ``benchmarks/run.py`` runs this as item 4 of the benchmark report.
+
+With ``--frames`` it runs the frame sweep instead (``speed_frames.{json,md,png}``): solve time
+versus the number of frames F at few and at many points, MoJu's default solve with known and
+with estimated rotations side by side with the plain nuclear-norm ADMM of
+``reference_admm.py`` (known rotations) on the same inputs in the same run, each solve in its
+own subprocess on one BLAS thread; plus the 1,102-frame, 41-point case and 1,200 against 300
+frames at fixed points. It is not part of ``run.py``.
+
+    python benchmarks/speed.py --frames                # F = 100 ... 3,000, P = 50 and 2,000
+    python benchmarks/speed.py --frames --repeats 1 --timeout 600
+    python benchmarks/speed.py --frames --quick        # small sizes, about a minute
 """
 
 from __future__ import annotations
@@ -23,6 +34,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import frame_sweep
 from harness import (
     BENCHMARKS,
     METHODS,
@@ -195,7 +207,19 @@ def main() -> None:
     parser.add_argument("--sequences", nargs="+", default=["face1", "face3"])
     parser.add_argument("--points", nargs="+", type=int, default=None)
     parser.add_argument("--output-dir", type=Path, default=RESULTS)
+    parser.add_argument(
+        "--frames", action="store_true", help="run only the frame sweep (speed_frames.*)"
+    )
+    parser.add_argument(
+        "--timeout",
+        type=float,
+        default=frame_sweep.TIMEOUT,
+        help="frame sweep: seconds before a solve is stopped (larger F of it are skipped)",
+    )
     args = parser.parse_args()
+    if args.frames:
+        frame_sweep.main(args.quick, args.repeats, args.timeout, args.output_dir)
+        return
     points = args.points or ([1_000, 3_000] if args.quick else [1_000, 10_000, 28_880, 100_000])
     meta = provenance()
     rows = speed_rows(args.sequences, points, args.methods, 1 if args.quick else args.repeats)
