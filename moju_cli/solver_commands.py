@@ -24,7 +24,6 @@ import click
 import numpy as np
 from pydantic import ValidationError
 from pydantic.fields import FieldInfo
-from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from moju_core import defaults
@@ -238,11 +237,13 @@ def _solve(
 
     bar = _ProgressBar(params, enabled=not quiet)
     try:
-        with threadpool_limits(limits=threads), warnings.catch_warnings():
+        with warnings.catch_warnings():
             warnings.showwarning = bar.warn
             # Complete data go through the call as before; a mask only when something is missing.
             masked = {} if visibility is None else {"visibility": visibility}
-            return reconstruct(W, params, rotations=rotations, callback=bar, **masked)
+            return reconstruct(
+                W, params, rotations=rotations, callback=bar, threads=threads, **masked
+            )
     except MeasurementError as exc:
         raise click.ClickException(str(exc)) from exc
     finally:

@@ -68,7 +68,7 @@ def reconstruct(
     rotations: np.ndarray | None = None,
     visibility: np.ndarray | None = None,
     callback: ProgressCallback | None = None,
-    threads: int | None = 1,
+    threads: int | None = None,
 ) -> Result:
     """Recover camera rotations and per-frame 3D shapes from dense 2D tracks.
 
@@ -92,11 +92,16 @@ def reconstruct(
         ``callback(progress: Progress) -> bool | None``, called at every stage change and
         every iteration; returning True stops the solver, which raises
         :class:`~moju_core.errors.Cancelled`.
-    threads : int or None, default 1
-        BLAS threads while solving (through threadpoolctl); ``None`` leaves the process's
-        setting alone. One by default: the loop is many medium-sized products and memory-bound
-        passes, and on a 2-core machine two OpenBLAS threads made it 4-10 times slower as soon
-        as any other process was busy (``benchmarks/speed.py`` measures both).
+    threads : int or None, default None
+        BLAS/OpenMP threads of the solve. ``None`` leaves the caller's setting alone: the solve
+        runs on whatever limit is in force where it is called (``threadpoolctl``'s
+        ``threadpool_limits`` around the call, ``OPENBLAS_NUM_THREADS``, or the library's
+        default of one thread per core). An int sets that limit for the duration of the call
+        only. The ``moju`` CLI (``--threads``, default 1) and the service's workers
+        (``MOJU_WORKER_THREADS``, default 1) pass theirs: the loop is many medium-sized
+        products and memory-bound passes, and on a 2-core machine two OpenBLAS threads made
+        it 4-10 times slower as soon as any other process was busy (``benchmarks/speed.py``
+        measures both).
 
     Returns
     -------

@@ -27,7 +27,6 @@ from redis.exceptions import ConnectionError as RedisConnectionError
 from redis.exceptions import TimeoutError as RedisTimeoutError
 from rq import get_current_job
 from rq.timeouts import JobTimeoutException
-from threadpoolctl import threadpool_limits
 
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.result import Result
@@ -107,9 +106,7 @@ def _solve(
     from moju_core import reconstruct  # the solver loads scikit-learn; only workers need it
 
     measurements = storage.read_input(record.id)
-    # Limit BLAS/OpenMP threads per process: N worker processes x T threads should not
-    # exceed the cores, or they slow each other down (MOJU_WORKER_THREADS).
-    with threadpool_limits(limits=threads), warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught:
         # The user sees the solver's warnings in the job resource (result.warnings).
         warnings.simplefilter("always")
         # The mask only when points are missing: complete data take the call as before.
@@ -119,6 +116,9 @@ def _solve(
             record.parameters,
             rotations=measurements.rotations,
             callback=reporter,
+            # BLAS/OpenMP threads per process (MOJU_WORKER_THREADS): N worker processes x T
+            # threads should not exceed the cores, or they slow each other down.
+            threads=threads,
             **masked,
         )
     for warning in caught:

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 from numpy.testing import assert_allclose
-from threadpoolctl import threadpool_info
+from threadpoolctl import threadpool_info, threadpool_limits
 
 import moju_cli.solver_commands as solver_commands
 import moju_core.solver
@@ -177,17 +177,24 @@ def test_solver_options_reach_the_solver(inputs, tmp_path):
 
 @pytest.mark.parametrize(("args", "expected"), [([], 1), (["--threads", "2"], 2)])
 def test_threads_option_limits_blas_threads(inputs, tmp_path, monkeypatch, args, expected):
-    solve, seen = moju_core.solver.reconstruct, []
+    """The count is read from inside the solve (the progress callback), not around it."""
+    solve, seen = moju_core.solver.reconstruct, set()
 
-    def recording(*args, **kwargs):
-        seen.extend(pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas")
-        return solve(*args, **kwargs)
+    def recording(*args, callback, **kwargs):
+        def inside(progress):
+            if progress.stage == "iterating":
+                seen.update(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas")
+            return callback(progress)
+
+        return solve(*args, callback=inside, **kwargs)
 
     monkeypatch.setattr(moju_core.solver, "reconstruct", recording)
     output = tmp_path / "r.npz"
-    outcome = run(["reconstruct", str(inputs["tracks"]), "-o", str(output), "-q", *args])
+    # Whatever the process's limit was: the option decides.
+    with threadpool_limits(limits=3 - expected):
+        outcome = run(["reconstruct", str(inputs["tracks"]), "-o", str(output), "-q", *args])
     assert outcome.exit_code == 0, outcome.output
-    assert seen and set(seen) == {expected}
+    assert seen == {expected}
     assert output.exists()
 
 
@@ -320,7 +327,7 @@ def test_solver_input_error_is_a_clean_error(inputs, tmp_path):
 
 
 def test_ctrl_c_while_solving_exits_130_without_output(inputs, tmp_path, monkeypatch):
-    def interrupted(W, params, *, rotations=None, callback=None):
+    def interrupted(W, params, *, rotations=None, callback=None, threads=None):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(moju_core.solver, "reconstruct", interrupted)
@@ -454,7 +461,7 @@ def test_reconstruct_hands_the_visibility_to_the_solver(occluded_input, sequence
                                                          monkeypatch):  # fmt: skip
     calls = []
 
-    def solver(W, params, *, rotations=None, callback=None, visibility=None):
+    def solver(W, params, *, rotations=None, callback=None, visibility=None, threads=None):
         calls.append((W, visibility))
         return fake_solution(sequence, visibility)
 
@@ -477,7 +484,7 @@ def test_complete_input_reaches_the_solver_without_a_mask(inputs, sequence, tmp_
                                                           monkeypatch):  # fmt: skip
     calls = []
 
-    def solver(W, params, *, rotations=None, callback=None, **masked):
+    def solver(W, params, *, rotations=None, callback=None, threads=None, **masked):
         calls.append(masked)
         return fake_solution(sequence, None)
 

@@ -7,7 +7,8 @@ import time
 import warnings
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from moju_core import reconstruct
 from moju_core.params import SolverParams
@@ -114,7 +115,7 @@ def test_missing_points_reach_the_solver_and_the_stored_result(
     visibility[3:6, :50] = False
     calls = []
 
-    def solver(W, params, *, rotations=None, callback=None, visibility=None):
+    def solver(W, params, *, rotations=None, callback=None, visibility=None, threads=None):
         calls.append((W, visibility))
         return Result(
             shapes=np.zeros((10, 300, 3)),
@@ -136,3 +137,28 @@ def test_missing_points_reach_the_solver_and_the_stored_result(
     np.testing.assert_array_equal(given, visibility)
     assert np.isnan(W[6:12, :50]).all() and np.isfinite(W[:6]).all()
     np.testing.assert_array_equal(storage.read_result(job_id).visibility, visibility)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_worker_threads_setting_applies_inside_the_solve(
+    store, storage, settings, add_job, face_W, monkeypatch, threads
+):
+    import moju_core.solver
+
+    solve, seen = moju_core.solver.reconstruct, set()
+
+    def recording(*args, callback, **kwargs):
+        def inside(progress):
+            if progress.stage == "iterating":
+                seen.update(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas")
+            return callback(progress)
+
+        return solve(*args, callback=inside, **kwargs)
+
+    monkeypatch.setattr(moju_core.solver, "reconstruct", recording)
+    job_id = add_job(face_W, SolverParams(max_iter=3))
+    configured = settings.model_copy(update={"worker_threads": threads})
+    # Whatever the process's limit was: MOJU_WORKER_THREADS decides.
+    with threadpool_limits(limits=3 - threads):
+        assert execute(job_id, store, storage, configured)["status"] == "finished"
+    assert seen == {threads}
