@@ -32,7 +32,7 @@ from moju_core.errors import MeasurementError
 from moju_core.io import Measurements, read_measurements, read_result, write_measurements
 from moju_core.io import write_result as write_result_file
 from moju_core.metrics import evaluate as evaluate_scores
-from moju_core.params import SolverParams
+from moju_core.params import SolverParams, rotation_method
 from moju_core.ply import frame_file_name, write_ply_frames
 from moju_core.result import Progress, Result
 
@@ -73,7 +73,10 @@ SCORE_LABELS = {
 }
 
 # Command-line additions to a field's schema description, where the CLI adds a meaning.
-_CLI_NOTES = {"rotations": "'known' reads the rotations from the dataset R of INPUT."}
+_CLI_NOTES = {
+    "rotations": "'known' (and the default, when INPUT has one) uses the dataset R of INPUT; "
+    "with an estimating method, R is only scored against."
+}
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -445,14 +448,16 @@ def reconstruct(
             measurements = read_measurements(input_file)
         except MeasurementError as exc:
             raise click.ClickException(str(exc)) from exc
-        known = params.rotations == "known"
+        # The library's rule: R of INPUT is used unless an estimating method is named, in
+        # which case R is only the truth the estimated rotations are scored against.
+        method = rotation_method(params.rotations, measurements.rotations is not None)
+        known = method == "known"
         if known and measurements.rotations is None:
             raise click.ClickException(
                 f"--rotations known needs the camera rotations, but {Path(input_file).name} "
                 f"has no dataset R (shape {measurements.n_frames} x 2 x 3); add it, or use "
                 "--rotations auto to estimate them"
             )
-        # R in the input is only used when asked for: the schema's default is to estimate.
         result = _solve(
             measurements.W,
             params,

@@ -10,7 +10,7 @@ from threadpoolctl import threadpool_limits
 
 from moju_core import __version__, admm, camera, cameras, clustering, defaults, lrr, missing, pta
 from moju_core.errors import Cancelled, MeasurementError
-from moju_core.params import SolverParams
+from moju_core.params import SolverParams, rotation_method
 from moju_core.preprocessing import normalise
 from moju_core.result import Progress, Result
 from moju_core.rotations import noise_variance, significant_rank, spectrum
@@ -82,8 +82,10 @@ def reconstruct(
         Solver parameters; ``None`` means all defaults (every ``None`` field is derived from
         the data, see :mod:`moju_core.defaults`).
     rotations : array_like of shape (F, 2, 3), optional
-        Known camera rotations. Required when ``params.rotations == "known"``; when given and
-        ``params.rotations`` was not set explicitly, they are used (``rotations="known"``).
+        Known camera rotations. Used exactly when ``params.rotations`` is ``"known"`` or unset
+        (``None``, the default: ``"known"`` when rotations are given, else ``"auto"``; see
+        :func:`moju_core.params.rotation_method`). ``"known"`` without them, or an estimating
+        method (``"auto"``, ``"intersection"``, ...) with them, raises MeasurementError.
     visibility : array_like of shape (F, P), bool, optional
         True where point j is observed in frame f; it must agree with the NaN of W. The data
         term then runs over the observed entries only, and the shapes of every point in every
@@ -130,8 +132,7 @@ def _reconstruct(
     callback: ProgressCallback | None,
 ) -> Result:
     params = params if params is not None else SolverParams()
-    if rotations is not None and "rotations" not in params.model_fields_set:
-        params = params.model_copy(update={"rotations": "known"})
+    params = _resolve_rotation_method(params, rotations is not None)
     report = _Reporter(callback, params.max_iter)
     timings: dict[str, float] = {}
     start = time.perf_counter()
@@ -168,6 +169,8 @@ def _reconstruct(
             centred, params.rotations, n_bases=params.n_bases, seed=params.seed, singular=singular
         )
         rotations = estimate.rotations
+        # Result.params records what "auto" chose, so that it can be run again as it ran.
+        params = params.model_copy(update={"rotations": estimate.source})
     n_bases = estimate.n_bases if estimate.n_bases is not None else params.n_bases
     timings["rotations"] = time.perf_counter() - tic
 
@@ -255,6 +258,17 @@ def _reconstruct(
             **({"pta": out.extras["pta"]} if "pta" in out.extras else {}),
         },
     )
+
+
+def _resolve_rotation_method(params: SolverParams, given: bool) -> SolverParams:
+    """``params`` with the rotation method resolved; refuse rotations an estimator would ignore."""
+    method = rotation_method(params.rotations, given)
+    if given and method != "known":
+        raise MeasurementError(
+            f"rotations were given but params.rotations is {method!r}, which estimates them: "
+            "set rotations='known' (or leave it unset) to use them, or do not pass them"
+        )
+    return params.model_copy(update={"rotations": method})
 
 
 def _trajectory_basis(

@@ -23,12 +23,14 @@ from collections.abc import Callable
 from typing import Any
 from uuid import UUID
 
+import numpy as np
 from redis.exceptions import ConnectionError as RedisConnectionError
 from redis.exceptions import TimeoutError as RedisTimeoutError
 from rq import get_current_job
 from rq.timeouts import JobTimeoutException
 
 from moju_core.errors import Cancelled, MeasurementError
+from moju_core.params import rotation_method
 from moju_core.result import Result
 from moju_core.validation import estimate_memory_bytes
 from service.connection import connect_redis
@@ -114,7 +116,7 @@ def _solve(
         result = reconstruct(
             measurements.W,
             record.parameters,
-            rotations=measurements.rotations,
+            rotations=_known_rotations(record, measurements.rotations),
             callback=reporter,
             # BLAS/OpenMP threads per process (MOJU_WORKER_THREADS): N worker processes x T
             # threads should not exceed the cores, or they slow each other down.
@@ -124,6 +126,13 @@ def _solve(
     for warning in caught:
         logger.warning("job %s: %s", record.id, warning.message)
     return result, caught
+
+
+def _known_rotations(record: JobRecord, uploaded: np.ndarray | None) -> np.ndarray | None:
+    """The uploaded R when the job's rotation method uses it (the library's rule), else None:
+    with an estimating method it is only the truth the download's scores compare with."""
+    method = rotation_method(record.parameters.rotations, uploaded is not None)
+    return uploaded if method == "known" else None
 
 
 def _until_redis_answers(action: Callable[[], bool], patience: float, job_id: UUID) -> bool:

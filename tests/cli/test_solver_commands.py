@@ -75,9 +75,12 @@ def inputs(sequence, tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="module")
 def reconstructed(inputs, tmp_path_factory) -> tuple[Path, Result]:
-    """One default ``moju reconstruct`` of the full input, shared by the read-only tests."""
+    """One ``moju reconstruct`` of the full input with estimated rotations (the file's R is
+    then only scored against), shared by the read-only tests."""
     output = tmp_path_factory.mktemp("reconstructed") / "result.npz"
-    outcome = run(["reconstruct", str(inputs["full"]), "-o", str(output), "-q"])
+    outcome = run(
+        ["reconstruct", str(inputs["full"]), "-o", str(output), "-q", "--rotations", "auto"]
+    )
     assert outcome.exit_code == 0, outcome.output
     return output, outcome
 
@@ -149,7 +152,7 @@ def test_reconstruct_round_trip(reconstructed, sequence):
     assert stored.shapes.shape == (N_FRAMES, N_POINTS, 3)
     assert stored.rotations.shape == (N_FRAMES, 2, 3)
     assert np.isfinite(stored.shapes).all()
-    assert stored.params["rotations"] == "auto"  # the schema default, not the file's R
+    assert stored.params["rotations"] in ("intersection", "windowed")  # what "auto" chose
     assert stored.metadata["input"] == "full.npz"
     assert f"{N_FRAMES} frames x {N_POINTS} points: {stored.n_iter} iterations" in outcome.output
     assert str(output) in outcome.output
@@ -251,6 +254,16 @@ def test_reconstruct_with_known_rotations(inputs, sequence, tmp_path):
     shown = printed_scores(outcome.stdout)
     assert "rotation_error_deg" not in shown  # zero by construction, so not printed
     assert shown["e3d_procrustes"] < 0.1
+
+
+def test_default_rotations_are_the_files_R_when_it_has_one(inputs, sequence, tmp_path):
+    output = tmp_path / "result.npz"
+    outcome = run(["reconstruct", str(inputs["full"]), "-o", str(output), "-q", "--max-iter", "5"])
+    assert outcome.exit_code == 0, outcome.output
+    stored = read_result(output)
+    assert stored.params["rotations"] == "known"
+    assert_allclose(stored.rotations, sequence.rotations, atol=1e-12)
+    assert "rotation_error_deg" not in printed_scores(outcome.stdout)
 
 
 def test_known_rotations_without_R_is_a_clean_error(inputs, tmp_path, solver_must_not_run):
@@ -551,7 +564,7 @@ def test_demo_writes_input_result_and_frames(tmp_path):
         assert getattr(measurements, dataset) is not None
     stored = read_result(out / "result.npz")
     assert stored.shapes.shape == (12, 300, 3)
-    assert stored.params["rotations"] == "auto"
+    assert stored.params["rotations"] in ("intersection", "windowed")  # what "auto" chose
     assert len(list((out / "ply").glob("*.ply"))) == 12
     expected = evaluate(
         stored.shapes, measurements.ground_truth, stored.rotations, measurements.rotations

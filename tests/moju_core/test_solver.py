@@ -229,3 +229,22 @@ def test_threads_argument_sets_the_limit_for_the_call_only(face):
         assert _blas_threads() == {2}  # the caller's limit is back after the call
     with threadpool_limits(limits=1):
         assert _blas_threads_while_iterating(face, threads=2) == {2}
+
+
+def test_unset_rotation_method_uses_given_rotations_else_estimates(face):
+    assert SolverParams().rotations is None
+    given = reconstruct(face.W, SolverParams(max_iter=3), rotations=face.rotations)
+    assert given.params.rotations == "known"
+    np.testing.assert_allclose(given.rotations, face.rotations, atol=1e-12)
+    estimated = reconstruct(face.W, SolverParams(max_iter=3))
+    # Result.params names the estimator "auto" chose, and running that again repeats it.
+    assert estimated.params.rotations == estimated.extras["rotation_source"]
+    assert estimated.params.rotations in ("intersection", "windowed")
+    again = reconstruct(face.W, SolverParams(max_iter=3, rotations=estimated.params.rotations))
+    assert_array_equal(again.rotations, estimated.rotations)
+
+
+@pytest.mark.parametrize("method", ["auto", "intersection", "windowed", "rigid"])
+def test_an_estimating_method_with_given_rotations_is_refused(face, method):
+    with pytest.raises(MeasurementError, match=f"params.rotations is '{method}', which estimates"):
+        reconstruct(face.W, SolverParams(rotations=method), rotations=face.rotations)

@@ -11,6 +11,7 @@ import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from moju_core import reconstruct
+from moju_core.datasets import make_sequence
 from moju_core.params import SolverParams
 from moju_core.validation import tracks_to_W
 from service.states import JobStatus
@@ -162,3 +163,21 @@ def test_worker_threads_setting_applies_inside_the_solve(
     with threadpool_limits(limits=3 - threads):
         assert execute(job_id, store, storage, configured)["status"] == "finished"
     assert seen == {threads}
+
+
+def test_uploaded_rotations_follow_the_librarys_rule(store, storage, settings, add_job, face_W):
+    """Unset: the uploaded R is used, as by reconstruct() and ``moju reconstruct``; with an
+    estimating method it is not, and the job's rotations are the library's estimate."""
+    truth = make_sequence("face1", n_points=300).rotations
+    default = add_job(face_W, SolverParams(max_iter=3), rotations=truth)
+    auto = add_job(face_W, SolverParams(max_iter=3, rotations="auto"), rotations=truth)
+    for job_id in (default, auto):
+        assert execute(job_id, store, storage, settings)["status"] == "finished"
+    np.testing.assert_allclose(storage.read_result(default).rotations, truth, atol=1e-12)
+    record = store.get(default, reconcile_with_rq=False)
+    assert record.result.resolved_parameters.rotations == "known"
+    with threadpool_limits(limits=1):
+        expected = reconstruct(face_W, SolverParams(max_iter=3, rotations="auto"))
+    np.testing.assert_allclose(storage.read_result(auto).rotations, expected.rotations, atol=1e-9)
+    record = store.get(auto, reconcile_with_rq=False)
+    assert record.result.resolved_parameters.rotations == expected.params.rotations
