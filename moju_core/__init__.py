@@ -1,7 +1,7 @@
 """moju_core: dense non-rigid structure from motion by MoJu (Kumar, CVPR 2019).
 
-The one entry point is :func:`reconstruct`; parameters are :class:`SolverParams`, the answer is
-a :class:`Result`.
+The functional entry point is :func:`reconstruct`; parameters are :class:`SolverParams`, the
+answer is a :class:`Result`. :class:`MoJu` is the same solver as a scikit-learn estimator.
 """
 
 from moju_core.errors import Cancelled, MeasurementError
@@ -13,6 +13,7 @@ __version__ = "0.1.0"
 __all__ = [
     "Cancelled",
     "MeasurementError",
+    "MoJu",
     "Progress",
     "Result",
     "SolverParams",
@@ -27,4 +28,8 @@ def __getattr__(name: str):
         from moju_core.solver import reconstruct
 
         return reconstruct
+    if name == "MoJu":
+        from moju_core.estimator import MoJu
+
+        return MoJu
     raise AttributeError(name)
