@@ -6,7 +6,7 @@ answer is a :class:`Result`. :class:`MoJu` is the same solver as a scikit-learn 
 
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams
-from moju_core.result import Progress, Result
+from moju_core.result import Progress, Result, Stage, StopReason
 
 __version__ = "0.1.0"
 
@@ -17,6 +17,8 @@ __all__ = [
     "Progress",
     "Result",
     "SolverParams",
+    "Stage",
+    "StopReason",
     "__version__",
     "reconstruct",
 ]

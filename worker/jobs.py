@@ -289,7 +289,7 @@ def _run_attempt(
     return {
         "status": JobStatus.FINISHED.value,
         "n_iter": int(result.n_iter),
-        "stop_reason": result.stop_reason,
+        "stop_reason": str(result.stop_reason),
     }
 
 
