@@ -181,3 +181,29 @@ def test_uploaded_rotations_follow_the_librarys_rule(store, storage, settings, a
     np.testing.assert_allclose(storage.read_result(auto).rotations, expected.rotations, atol=1e-9)
     record = store.get(auto, reconcile_with_rq=False)
     assert record.result.resolved_parameters.rotations == expected.params.rotations
+
+
+@pytest.mark.parametrize("requested", [None, "auto"])
+def test_same_file_gives_the_same_rotations_from_the_cli_and_a_job(
+    store, storage, settings, add_job, face_W, tmp_path, requested
+):
+    from click.testing import CliRunner
+
+    from moju_cli.main import cli
+    from moju_core.io import Measurements, read_result, write_measurements
+
+    truth = make_sequence("face1", n_points=300).rotations
+    source = write_measurements(tmp_path / "in.npz", Measurements(W=face_W, rotations=truth))
+    chosen = [] if requested is None else ["--rotations", requested]
+    output = tmp_path / "cli.npz"
+    args = ["reconstruct", str(source), "-o", str(output), "-q", "--max-iter", "3", *chosen]
+    outcome = CliRunner().invoke(cli, args)
+    assert outcome.exit_code == 0, outcome.output
+    params = SolverParams(max_iter=3, **({} if requested is None else {"rotations": requested}))
+    job_id = add_job(face_W, params, rotations=truth)
+    assert execute(job_id, store, storage, settings)["status"] == "finished"
+    from_cli, from_job = read_result(output), storage.read_result(job_id)
+    np.testing.assert_allclose(from_job.rotations, from_cli.rotations, rtol=0, atol=1e-12)
+    resolved = store.get(job_id, reconcile_with_rq=False).result.resolved_parameters.rotations
+    assert resolved == from_cli.params["rotations"]
+    assert (resolved == "known") is (requested is None)
