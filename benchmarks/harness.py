@@ -57,6 +57,7 @@ def solve(
     rotation_source: str = "known",
     seed: int = 0,
     keep_history: bool = False,
+    visibility: np.ndarray | None = None,
     **overrides: Any,
 ) -> dict[str, Any]:
     """Reconstruct one sequence with one method and measure the result.
@@ -76,6 +77,10 @@ def solve(
         Solver seed.
     keep_history : bool, default False
         Add the per-iteration history (lists) to the row.
+    visibility : ndarray of shape (F, P), bool, optional
+        The observed entries: the solver gets ``W`` with NaN at the others, and the row adds
+        ``observed_fraction`` and ``e3d_occluded`` (per-frame Procrustes over the hidden
+        entries; None when nothing is hidden).
     **overrides
         Further :class:`SolverParams` fields (e.g. ``subspace_dim=6``).
 
@@ -88,12 +93,16 @@ def solve(
     params = SolverParams(
         method=method, **({"rotations": "known"} if known else {}), seed=seed, **overrides
     )
+    W = data.W
+    if visibility is not None:
+        W = data.W.copy()
+        W[np.repeat(~visibility, 2, axis=0)] = np.nan
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         start = time.perf_counter()
-        result = reconstruct(data.W, params, rotations=data.rotations if known else None)
+        result = reconstruct(W, params, rotations=data.rotations if known else None)
         seconds = time.perf_counter() - start
-    scores = evaluate(result.shapes, data.shapes, result.rotations, data.rotations)
+    scores = evaluate(result.shapes, data.shapes, result.rotations, data.rotations, visibility)
     row: dict[str, Any] = {
         "sequence": data.name,
         "n_frames": data.n_frames,
@@ -121,6 +130,9 @@ def solve(
         "n_bases": result.params.n_bases,
         "warnings": sorted({str(w.message) for w in caught}),
     }
+    if visibility is not None:
+        row["observed_fraction"] = float(visibility.mean())
+        row["e3d_occluded"] = scores.get("e3d_occluded_procrustes")
     if keep_history:
         row["history"] = {key: values.tolist() for key, values in result.history.items()}
         row["beta2"] = result.params.beta2

@@ -35,6 +35,8 @@ from moju_core.metrics import evaluate as evaluate_scores
 from moju_core.params import SolverParams, rotation_method
 from moju_core.ply import frame_file_name, write_ply_frames
 from moju_core.result import Progress, Result
+from moju_core.tracking import DEFAULT_STEP, solvable_tracks, tracks_measurements, write_tracks
+from moju_core.video import is_video_source
 
 #: Extensions :func:`moju_core.io.write_result` understands; checked before any solving.
 RESULT_EXTENSIONS = (".npz", ".h5", ".hdf5")
@@ -408,7 +410,7 @@ def _occlusion_mask(
 
 
 @click.command("reconstruct")
-@click.argument("input_file", metavar="INPUT", type=click.Path(exists=True, dir_okay=False))
+@click.argument("input_file", metavar="INPUT", type=click.Path(exists=True))
 @click.option(
     "-o",
     "--output",
@@ -420,7 +422,32 @@ def _occlusion_mask(
     "--ply-dir",
     type=click.Path(file_okay=False, path_type=Path),
     default=None,
-    help="Also write one PLY per frame here (with INPUT's faces and colors when present).",
+    help="Also write one PLY per frame here (with INPUT's faces and colors when present; "
+    "for a video, coloured from its first frame).",
+)
+@click.option(
+    "--mask",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help="Video only, as for moju track: PNG marking the object in the first tracked frame.",
+)
+@click.option(
+    "--step",
+    type=click.IntRange(min=1),
+    default=None,
+    help=f"Video only: grid spacing of the tracked points in pixels [default: {DEFAULT_STEP}].",
+)
+@click.option(
+    "--start",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Video only: first frame to track (from 0) [default: 0].",
+)
+@click.option(
+    "--end",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Video only: frame to stop before (exclusive) [default: the last frame].",
 )
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 @_threads_option
@@ -429,25 +456,55 @@ def reconstruct(
     input_file: str,
     output: Path,
     ply_dir: Path | None,
+    mask: Path | None,
+    step: int | None,
+    start: int | None,
+    end: int | None,
     quiet: bool,
     threads: int,
     **solver_values: Any,
 ) -> None:
-    """Reconstruct 3D shapes and camera rotations from the 2D tracks in INPUT.
+    """Reconstruct 3D shapes and camera rotations from the 2D tracks in INPUT, or from a video.
 
     INPUT is npz, HDF5 (dataset W of shape 2F x P, or tracks F x P x 2; optional R, gt,
     faces, colors) or CSV (header frame,point,x,y). Solver options left unset take the
     schema's defaults; those marked "derived from the data" are chosen from the input's size.
     When INPUT holds ground truth (gt), the e3D is printed.
+
+    INPUT may also be a video (mp4, webm, avi) or a folder of images: it is tracked first as
+    by moju track (--mask, --step, --start, --end), the tracks are written next to the result
+    (OUTPUT's name with .tracks.npz), tracks seen in fewer than 2 frames are dropped, and the
+    lost positions are solved for as missing entries.
     """
     _check_output(output)
+    video = is_video_source(input_file)
+    _check_video_options(video, mask=mask, step=step, start=start, end=end)
     params = _solver_params(_pop_solver_values(solver_values))
+    if video and params.rotations == "known":
+        raise click.UsageError(
+            "--rotations known needs camera rotations, which a video does not have; use "
+            "--rotations auto (or leave it unset) to estimate them"
+        )
     outputs = _Outputs()
+    tracks_path = None
     with _interruptible(outputs):
-        try:
-            measurements = read_measurements(input_file)
-        except MeasurementError as exc:
-            raise click.ClickException(str(exc)) from exc
+        if video:
+            tracks_path = output.with_name(output.stem + ".tracks.npz")
+            measurements = _track_video_input(
+                Path(input_file),
+                tracks_path,
+                outputs,
+                mask=mask,
+                step=DEFAULT_STEP if step is None else step,
+                start=start or 0,
+                end=end,
+                quiet=quiet,
+            )
+        else:
+            try:
+                measurements = read_measurements(input_file)
+            except MeasurementError as exc:
+                raise click.ClickException(str(exc)) from exc
         # The library's rule: R of INPUT is used unless an estimating method is named, in
         # which case R is only the truth the estimated rotations are scored against.
         method = rotation_method(params.rotations, measurements.rotations is not None)
@@ -476,6 +533,8 @@ def reconstruct(
             result, measurements.n_frames, measurements.n_points, measurements.observed_fraction
         )
     )
+    if tracks_path is not None:
+        click.echo(f"tracks: {tracks_path}")
     click.echo(f"result: {output}")
     if ply_dir is not None:
         click.echo(f"PLY: {measurements.n_frames} files in {ply_dir}")
@@ -491,6 +550,56 @@ def reconstruct(
         )
         for line in _format_scores(scores, rotations_estimated=not known):
             click.echo(line)
+
+
+def _check_video_options(video: bool, **options: Any) -> None:
+    """Refuse tracking options for a measurement file, and an --end not after --start."""
+    given = [name for name, value in options.items() if value is not None]
+    if not video and given:
+        names = ", ".join(f"--{name}" for name in given)
+        raise click.UsageError(
+            f"{names} only apply to a video input (mp4, webm, avi or a folder of images); "
+            "INPUT is a measurement file"
+        )
+    start, end = options["start"] or 0, options["end"]
+    if end is not None and end <= start:
+        raise click.BadParameter(f"--end ({end}) must be after --start ({start})")
+
+
+def _track_video_input(
+    video: Path,
+    tracks_path: Path,
+    outputs: _Outputs,
+    *,
+    mask: Path | None,
+    step: int,
+    start: int,
+    end: int | None,
+    quiet: bool,
+) -> Measurements:
+    """Track ``video`` (as ``moju track``), write the solvable tracks to ``tracks_path`` and
+    return them as measurements (NaN where lost, the first frame's colours)."""
+    from moju_cli.video_commands import run_tracking, summary
+
+    tracks, seconds = run_tracking(
+        video, mask=mask, step=step, start=start, end=end, method="dis", quiet=quiet
+    )
+    click.echo(summary(tracks, seconds))
+    try:
+        kept = solvable_tracks(tracks)
+    except MeasurementError as exc:
+        raise click.ClickException(str(exc)) from exc
+    if kept.n_points < tracks.n_points:
+        click.echo(
+            f"{tracks.n_points - kept.n_points} tracks seen in one frame only are left out; "
+            f"{kept.n_points} are reconstructed"
+        )
+    outputs.created.append(tracks_path)
+    _write_or_fail(tracks_path, lambda: write_tracks(tracks_path, kept))
+    try:
+        return tracks_measurements(kept)
+    except MeasurementError as exc:
+        raise click.ClickException(str(exc)) from exc
 
 
 @click.command("evaluate")

@@ -66,6 +66,7 @@ def choose_smoothness(
     *,
     refine_rotations: bool = False,
     hook: admm.IterationHook | None = None,
+    observed: np.ndarray | None = None,
 ) -> tuple[float, list[tuple[float, float]]]:
     """The largest weight of :data:`SMOOTHNESS_GRID` whose misfit the tracks allow.
 
@@ -86,6 +87,10 @@ def choose_smoothness(
     hook : callable, optional
         Passed to every trial solve (:func:`moju_core.admm.run`): the solver reports
         progress and honours cancellation through it.
+    observed : ndarray of shape (F, P), bool, optional
+        Where the points are observed (None: all). The trial solves then fit the observed
+        entries only, so that the completion of the hidden ones (``tracks`` holds it there)
+        does not count as misfit.
 
     Returns
     -------
@@ -99,13 +104,18 @@ def choose_smoothness(
         return 0.0, []  # no second differences, or nothing above the noise
     if n_points > SELECTION_POINTS:
         rng = np.random.default_rng(params.seed)
-        tracks = tracks[:, :, np.sort(rng.choice(n_points, SELECTION_POINTS, replace=False))]
+        chosen = np.sort(rng.choice(n_points, SELECTION_POINTS, replace=False))
+        tracks = tracks[:, :, chosen]
+        if observed is not None:
+            observed = observed[:, chosen]
     measurements = tracks.reshape(2 * n_frames, -1)
     signal = signal_basis @ (signal_basis.T @ measurements)
     if n_frames > SELECTION_FRAMES:
         first = (n_frames - SELECTION_FRAMES) // 2
         signal = signal[2 * first : 2 * (first + SELECTION_FRAMES)]
         rotations = rotations[first : first + SELECTION_FRAMES]
+        if observed is not None:
+            observed = observed[first : first + SELECTION_FRAMES]
         n_frames = SELECTION_FRAMES
     energy = float(np.mean(signal**2))
     allowed_excess = DEFORMATION_ALLOWANCE * non_rigid_energy(
@@ -119,7 +129,12 @@ def choose_smoothness(
             update={"smoothness": weight, "n_groups": 1, **TRIAL_LOOP_CONTROL}
         )
         out = admm.run(
-            signal_tracks, rotations, trial, hook=hook, refine_rotations=refine_rotations
+            signal_tracks,
+            rotations,
+            trial,
+            hook=hook,
+            refine_rotations=refine_rotations,
+            observed=observed,
         )
         value = float(out.history["reprojection"][-1] ** 2) / energy
         trials.append((weight, value))

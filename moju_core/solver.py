@@ -198,6 +198,7 @@ def _reconstruct(
             signal_basis,
             refine_rotations=estimate.refine,
             hook=trial_hook,
+            observed=observed,
         )
         params = params.model_copy(update={"smoothness": weight})
     features = None

@@ -45,16 +45,20 @@ from typing import Literal
 import numpy as np
 
 from moju_core.errors import Cancelled, VideoError, VideoTooLarge
-from moju_core.io import atomic_output
+from moju_core.io import Measurements, atomic_output
+from moju_core.validation import MIN_FRAMES_PER_POINT, MIN_POINTS_PER_FRAME
 from moju_core.video import DEFAULT_LIMITS, VideoLimits, check_clip, open_video, read_mask
 
 __all__ = [
     "DEFAULT_STEP",
     "Tracks",
+    "count_grid_points",
     "TrackingProgress",
     "textured_region",
     "track_frames",
+    "solvable_tracks",
     "track_video",
+    "tracks_measurements",
     "write_tracks",
 ]
 
@@ -170,6 +174,12 @@ def _grid(mask: np.ndarray, step: int) -> np.ndarray:
     )
     keep = mask[ys, xs]
     return np.stack([xs[keep], ys[keep]], axis=1).astype(np.float64)
+
+
+def count_grid_points(mask: np.ndarray, step: int = DEFAULT_STEP) -> int:
+    """Number of tracks a run starts with: grid points every ``step`` pixels on ``mask``
+    (H, W) bool."""
+    return int(_grid(np.asarray(mask, dtype=bool), step).shape[0])
 
 
 class _Flow:
@@ -492,3 +502,43 @@ def write_tracks(path: str | os.PathLike, tracks: Tracks) -> None:
             colors=tracks.colors,
             frame_size=np.asarray(tracks.frame_size, dtype=np.int64),
         )
+
+
+def solvable_tracks(tracks: Tracks) -> Tracks:
+    """The tracks the solver can use: those with a position in at least
+    :data:`moju_core.validation.MIN_FRAMES_PER_POINT` frames (a track lost right after the
+    first frame gives no depth), in their original order.
+
+    Raises VideoError when fewer than :data:`MIN_POINTS_PER_FRAME` tracks are left, in all or
+    in some frame (frames are numbered from the first tracked one).
+    """
+    keep = np.count_nonzero(tracks.visibility, axis=0) >= MIN_FRAMES_PER_POINT
+    if np.count_nonzero(keep) < MIN_POINTS_PER_FRAME:
+        raise VideoError(
+            f"only {int(np.count_nonzero(keep))} of {tracks.n_points} tracks were followed "
+            f"beyond the first frame; a reconstruction needs at least {MIN_POINTS_PER_FRAME}. "
+            "Check the mask, use a smaller step or a video with less motion between frames"
+        )
+    thin = np.flatnonzero(
+        np.count_nonzero(tracks.visibility[:, keep], axis=1) < MIN_POINTS_PER_FRAME
+    )
+    if thin.size:
+        raise VideoError(
+            f"fewer than {MIN_POINTS_PER_FRAME} tracks are left from frame {thin[0]} on (of "
+            f"{tracks.n_frames} tracked; the tracker lost the others), too few for a camera: "
+            f"reconstruct the frames before it (moju: --end {thin[0]}), or use a video with "
+            "less motion between frames"
+        )
+    if keep.all():
+        return tracks
+    return Tracks(
+        W=np.ascontiguousarray(tracks.W[:, keep]),
+        visibility=np.ascontiguousarray(tracks.visibility[:, keep]),
+        colors=np.ascontiguousarray(tracks.colors[keep]),
+        frame_size=tracks.frame_size,
+    )
+
+
+def tracks_measurements(tracks: Tracks) -> Measurements:
+    """``tracks`` as solver input: W (NaN where lost), visibility and the points' colours."""
+    return Measurements(W=tracks.W, visibility=tracks.visibility, colors=tracks.colors)

@@ -29,12 +29,17 @@ from moju_core.errors import VideoError, VideoTooLarge
 __all__ = [
     "DEFAULT_LIMITS",
     "IMAGE_EXTENSIONS",
+    "VIDEO_EXTENSIONS",
     "VideoInfo",
     "VideoLimits",
     "open_video",
+    "is_video_source",
+    "sniff_video",
     "read_mask",
 ]
 
+#: File name endings taken for video files by :func:`is_video_source`.
+VIDEO_EXTENSIONS = (".mp4", ".webm", ".avi")
 #: Image files of an image-folder source.
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -123,6 +128,25 @@ class VideoInfo:
             yield from _read_images(self, start, end)
         else:
             yield from _decode_video(self, start, end)
+
+
+def is_video_source(path: str | os.PathLike) -> bool:
+    """True for a folder (of images) or a file named as a video (:data:`VIDEO_EXTENSIONS`)."""
+    path = Path(path)
+    return path.is_dir() or path.suffix.lower() in VIDEO_EXTENSIONS
+
+
+def sniff_video(head: bytes) -> str | None:
+    """The extension (of :data:`VIDEO_EXTENSIONS`) of a file starting with ``head`` (its first
+    12 bytes or more): ``.mp4`` (ISO media, ``ftyp`` box), ``.webm`` (EBML) or ``.avi``
+    (RIFF AVI); None for anything else."""
+    if head[4:8] == b"ftyp":
+        return ".mp4"
+    if head[:4] == b"\x1a\x45\xdf\xa3":
+        return ".webm"
+    if head[:4] == b"RIFF" and head[8:12] == b"AVI ":
+        return ".avi"
+    return None
 
 
 def _name(path: Path) -> str:

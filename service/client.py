@@ -14,6 +14,7 @@ Every error is a :class:`MojuError`; HTTP errors carry the server's ``detail`` m
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -172,30 +173,37 @@ class MojuClient:
         params: ParamsLike = None,
         *,
         filename: str | None = None,
+        mask: str | Path | None = None,
     ) -> JobResource:
-        """Upload a measurement file (npz, HDF5 or CSV) and queue a job.
+        """Upload a measurement file (npz, HDF5 or CSV) or a video, and queue a job.
 
         Parameters
         ----------
         source : path or binary file
-            The measurement file.
+            The measurement file, or a video (mp4, webm, avi) that the job tracks first.
         params : SolverParams or mapping, optional
             Solver parameters (unknown names are refused by the server with 422).
         filename : str, optional
             Name sent with the upload (default: the file's name); the server uses its
             extension as a format hint only.
+        mask : path, optional
+            With a video: PNG of the first frame's size marking the object to track.
         """
         data = {}
         params_text = _params_json(params)
         if params_text is not None:
             data["params"] = params_text
-        if isinstance(source, (str, Path)):
-            path = Path(source)
-            with open(path, "rb") as handle:
+        with contextlib.ExitStack() as stack:
+            if isinstance(source, (str, Path)):
+                path = Path(source)
+                handle = stack.enter_context(open(path, "rb"))
                 files = {"file": (filename or path.name, handle, "application/octet-stream")}
-                response = self._request("POST", "/v1/jobs", files=files, data=data)
-        else:
-            files = {"file": (filename or "upload", source, "application/octet-stream")}
+            else:
+                files = {"file": (filename or "upload", source, "application/octet-stream")}
+            if mask is not None:
+                mask_path = Path(mask)
+                files["mask"] = (mask_path.name, stack.enter_context(open(mask_path, "rb")),
+                                 "image/png")  # fmt: skip
             response = self._request("POST", "/v1/jobs", files=files, data=data)
         return JobResource.model_validate_json(response.content)
 
@@ -304,6 +312,12 @@ class MojuClient:
         """Save every frame as PLY, zipped, to ``path``."""
         path = Path(path)
         self._stream_to(f"/v1/jobs/{_job_id(job)}/frames.zip", path, None)
+        return path
+
+    def download_tracks(self, job: JobRef, path: str | Path) -> Path:
+        """Save a video job's 2D tracks (npz, the layout of ``moju track``) to ``path``."""
+        path = Path(path)
+        self._stream_to(f"/v1/jobs/{_job_id(job)}/tracks.npz", path, None)
         return path
 
     def frame_ply(self, job: JobRef, frame: int) -> bytes:

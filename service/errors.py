@@ -52,6 +52,12 @@ class NoGroundTruth(ServiceError):
     status_code = 404
 
 
+class NotAVideoJob(ServiceError):
+    """Tracks or the first frame were asked of a job that was not a video upload."""
+
+    status_code = 404
+
+
 class FrameOutOfRange(ServiceError):
     """A frame number outside 0..F-1."""
 

@@ -20,15 +20,54 @@ from service.states import JobStatus
 _EXAMPLE_ID = "0b7e9f6c-3a51-4f0e-9d7c-2c1e8a4b5d60"
 
 
+class VideoSummary(BaseModel):
+    """What the API found in an uploaded video, from its headers and first frames."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    width: int = Field(description="Frame width in pixels.", examples=[320])
+    height: int = Field(description="Frame height in pixels.", examples=[240])
+    fps: float | None = Field(None, description="Frame rate the container declares.")
+    has_mask: bool = Field(
+        description="A mask of the object was uploaded; without one the textured region of "
+        "the first frame is tracked."
+    )
+    step: int = Field(description="Grid spacing of the tracked points, in pixels.", examples=[4])
+
+
+class TrackingSummary(BaseModel):
+    """Outcome of the tracking stage of a video job (the tracks are in tracks.npz)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    tracks: int = Field(description="Tracks started on the first frame.", examples=[4800])
+    reconstructed: int = Field(
+        description="Tracks seen in 2 frames or more: the points of the result.",
+        examples=[4750],
+    )
+    fraction_kept: float = Field(
+        ge=0.0, le=1.0, description="Fraction of the track-frames with a position."
+    )
+    seconds: float = Field(description="Time the tracking took.", examples=[3.2])
+
+
 class InputSummary(BaseModel):
     """What the API found in the upload, after validation."""
 
     model_config = ConfigDict(extra="forbid")
 
     frames: int = Field(description="Number of frames F.", examples=[10])
-    points: int = Field(description="Number of tracked points P.", examples=[2000])
-    format: Literal["npz", "h5", "csv", "json"] = Field(
-        description="How the measurements were sent.", examples=["npz"]
+    points: int = Field(
+        description=(
+            "Number of tracked points P. For a video: the grid points to track (on the mask; "
+            "without one, on the whole frame, an upper bound); result.tracking says how many "
+            "were reconstructed."
+        ),
+        examples=[2000],
+    )
+    format: Literal["npz", "h5", "csv", "json", "video"] = Field(
+        description="How the measurements were sent (video: tracked by the worker first).",
+        examples=["npz"],
     )
     filename: str | None = Field(
         None,
@@ -56,6 +95,7 @@ class InputSummary(BaseModel):
         ),
         examples=[0.85],
     )
+    video: VideoSummary | None = Field(None, description="For a video upload: what it holds.")
 
 
 class ProgressReport(BaseModel):
@@ -64,19 +104,34 @@ class ProgressReport(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     stage: str = Field(
-        description="One of " + ", ".join([*Stage, "finished"]) + ".",
+        description=(
+            "One of tracking (video jobs: the tracker's stage, before the solve), "
+            + ", ".join([*Stage, "finished"])
+            + "."
+        ),
         examples=["iterating"],
     )
-    iteration: int = Field(description="ADMM iterations done so far.", examples=[42])
-    max_iter: int = Field(description="Iteration cap (params.max_iter).", examples=[300])
+    iteration: int = Field(
+        description="ADMM iterations done so far (while tracking: frames tracked).", examples=[42]
+    )
+    max_iter: int = Field(
+        description="Iteration cap (params.max_iter; while tracking: the video's frames).",
+        examples=[300],
+    )
     gap: float | None = Field(
         None, description="Primal gap of the last iteration; null before the loop starts."
     )
     rho: float | None = Field(None, description="Current ADMM penalty parameter.")
     fraction: float = Field(
-        ge=0.0, le=1.0, description="Estimated fraction of the work done.", examples=[0.4]
+        ge=0.0,
+        le=1.0,
+        description="Estimated fraction of the current stage's work done (tracking, then solve).",
+        examples=[0.4],
     )
-    elapsed: float = Field(description="Seconds since the solver started.", examples=[1.8])
+    elapsed: float = Field(
+        description="Seconds since the solver (while tracking: the tracker) started.",
+        examples=[1.8],
+    )
     eta: float | None = Field(None, description="Estimated seconds left; null when unknown.")
 
     @field_validator("gap", "rho", "eta", mode="before")
@@ -107,6 +162,9 @@ class ResultSummary(BaseModel):
         default_factory=list,
         description="Warnings of the solver, e.g. a fallback it took.",
         examples=[[]],
+    )
+    tracking: TrackingSummary | None = Field(
+        None, description="For a video job: how the tracking went."
     )
 
 
@@ -167,6 +225,9 @@ class JobLinks(BaseModel):
     frames_zip: str = Field(examples=[f"/v1/jobs/{_EXAMPLE_ID}/frames.zip"])
     metrics: str | None = Field(
         None, description="Present when ground truth was uploaded.", examples=[None]
+    )
+    tracks: str | None = Field(
+        None, description="For a video job: its 2D tracks (npz).", examples=[None]
     )
 
 

@@ -12,6 +12,8 @@ from pathlib import Path
 from pydantic import AliasChoices, Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from moju_core.video import VideoLimits
+
 MIB = 2**20
 GIB = 2**30
 
@@ -68,6 +70,24 @@ class Settings(BaseSettings):
     )
     max_points: int = Field(50_000, ge=3, description="Largest number of points P per job.")
     max_frames: int = Field(2_000, ge=2, description="Largest number of frames F per job.")
+    max_video_bytes: int = Field(
+        128 * MIB,
+        ge=1024,
+        description=(
+            "Largest video file accepted by POST /v1/jobs (the whole body is also bounded by "
+            "max_upload_bytes)."
+        ),
+    )
+    max_video_width: int = Field(1920, ge=16, description="Widest video frame, in pixels.")
+    max_video_height: int = Field(1080, ge=16, description="Tallest video frame, in pixels.")
+    max_video_frames: int = Field(
+        600, ge=2, description="Most frames of an uploaded video (all of them are tracked)."
+    )
+    max_video_seconds: float = Field(
+        120.0,
+        gt=0,
+        description="Longest uploaded video, in seconds (from the frame rate it declares).",
+    )
     worker_memory_bytes: int = Field(
         8 * GIB,
         ge=256 * MIB,
@@ -186,6 +206,18 @@ class Settings(BaseSettings):
     def cors_origin_list(self) -> list[str]:
         """``cors_origins`` as a list (empty: CORS off)."""
         return [origin.strip() for origin in self.cors_origins.split(",") if origin.strip()]
+
+    @property
+    def video_limits(self) -> VideoLimits:
+        """What an uploaded video may hold (the tracks are bounded by max_points)."""
+        return VideoLimits(
+            max_bytes=self.max_video_bytes,
+            max_width=self.max_video_width,
+            max_height=self.max_video_height,
+            max_frames=min(self.max_video_frames, self.max_frames),
+            max_seconds=self.max_video_seconds,
+            max_points=self.max_points,
+        )
 
     def require_redis_url(self) -> str:
         """The Redis URL, or a ``RuntimeError`` that says how to provide one."""

@@ -8,6 +8,14 @@ Layout of :class:`LocalStorage` (the directory is the volume shared by the API a
     <data_dir>/jobs/<uuid>/result.npz    npz copy, made on the first npz download
     <data_dir>/jobs/<uuid>/metrics.json  accuracy against the ground truth, made on demand
 
+A video job holds the upload instead of ``input.npz``, and the worker adds the tracks::
+
+    <data_dir>/jobs/<uuid>/video.mp4       the uploaded video (.mp4, .webm or .avi, by content)
+    <data_dir>/jobs/<uuid>/mask.png        the uploaded mask, when there is one
+    <data_dir>/jobs/<uuid>/first_frame.png the first frame, decoded by the API at upload
+    <data_dir>/jobs/<uuid>/tracks.npz      the tracker's output (moju_core.tracking.write_tracks)
+    <data_dir>/jobs/<uuid>/input.npz       the tracks as solver input, written by the worker
+
 Paths are built only from :class:`uuid.UUID` objects and fixed file names: no string a user
 sent ever becomes part of a path. Every file is written under a temporary name and renamed
 into place (``moju_core.io.atomic_output``), so a reader never sees half a file.
@@ -42,12 +50,19 @@ from moju_core.io import (
 )
 from moju_core.params import SolverParams
 from moju_core.result import Result
+from moju_core.tracking import Tracks, write_tracks
+from moju_core.video import VIDEO_EXTENSIONS
 
 ResultFormat = Literal["h5", "npz"]
 
 INPUT_NAME = "input.npz"
 RESULT_NAMES: dict[str, str] = {"h5": "result.h5", "npz": "result.npz"}
 METRICS_NAME = "metrics.json"
+MASK_NAME = "mask.png"
+FIRST_FRAME_NAME = "first_frame.png"
+TRACKS_NAME = "tracks.npz"
+#: Names the uploaded video may be stored under (its extension follows its content).
+VIDEO_NAMES = tuple(f"video{extension}" for extension in VIDEO_EXTENSIONS)
 
 
 class JobFilesMissing(FileNotFoundError):
@@ -95,6 +110,23 @@ class Storage(Protocol):
         self, job_id: UUID, result: Result, metadata: Mapping[str, Any] | None = None
     ) -> None:
         """Store a job's result atomically."""
+
+    def write_video(
+        self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path
+    ) -> None:
+        """Move an uploaded video (and its mask and first frame) into the job's area."""
+
+    def video_files(self, job_id: UUID) -> tuple[Path, Path | None]:
+        """The stored video and its mask (or None) of a video job."""
+
+    def write_tracks(self, job_id: UUID, tracks: Tracks) -> None:
+        """Store a video job's tracks atomically."""
+
+    def tracks_file(self, job_id: UUID) -> Path:
+        """The stored tracks of a video job (JobFilesMissing when there are none)."""
+
+    def first_frame_file(self, job_id: UUID) -> Path:
+        """The first frame of a video job as PNG (JobFilesMissing when there is none)."""
 
     def has_result(self, job_id: UUID) -> bool:
         """True when the job's result is stored."""
@@ -170,6 +202,48 @@ class LocalStorage:
             self._existing_directory(job_id) / RESULT_NAMES["h5"], result, metadata=metadata
         )
 
+    def write_video(
+        self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path
+    ) -> None:
+        """Move the staged files in as ``video.<ext>``, ``mask.png`` and ``first_frame.png``."""
+        directory = self._existing_directory(job_id)
+        name = f"video{video.suffix.lower()}"
+        if name not in VIDEO_NAMES:
+            raise ValueError(f"a stored video is one of {', '.join(VIDEO_NAMES)}, not {name}")
+        moves = [(first_frame, FIRST_FRAME_NAME), (video, name)]
+        if mask is not None:
+            moves.insert(0, (mask, MASK_NAME))
+        for source, target in moves:  # the video last: its presence marks a complete upload
+            with atomic_output(directory / target) as temporary:
+                shutil.move(source, temporary)
+
+    def video_files(self, job_id: UUID) -> tuple[Path, Path | None]:
+        """``video.<ext>`` and ``mask.png`` (None when no mask was uploaded)."""
+        directory = self._existing_directory(job_id)
+        for name in VIDEO_NAMES:
+            if (directory / name).is_file():
+                mask = directory / MASK_NAME
+                return directory / name, mask if mask.is_file() else None
+        raise JobFilesMissing(job_id)
+
+    def write_tracks(self, job_id: UUID, tracks: Tracks) -> None:
+        """Store ``tracks.npz`` (temporary name, then rename)."""
+        write_tracks(self._existing_directory(job_id) / TRACKS_NAME, tracks)
+
+    def tracks_file(self, job_id: UUID) -> Path:
+        """Path of ``tracks.npz``."""
+        path = self._directory(job_id) / TRACKS_NAME
+        if not path.is_file():
+            raise JobFilesMissing(job_id)
+        return path
+
+    def first_frame_file(self, job_id: UUID) -> Path:
+        """Path of ``first_frame.png``."""
+        path = self._directory(job_id) / FIRST_FRAME_NAME
+        if not path.is_file():
+            raise JobFilesMissing(job_id)
+        return path
+
     def has_result(self, job_id: UUID) -> bool:
         """True when ``result.h5`` exists."""
         return (self._directory(job_id) / RESULT_NAMES["h5"]).is_file()
@@ -236,12 +310,15 @@ class LocalStorage:
 
         For a job whose worker was lost: what the lost attempt wrote (a temporary file it
         was writing when it died, or a result it renamed into place just before) must not
-        outlive it. Only ``input.npz`` stays.
+        outlive it. Only the upload stays: ``input.npz``, or for a video job the video, its
+        mask and first frame (its ``tracks.npz`` and ``input.npz`` are the worker's).
         """
         directory = self._directory(job_id)
         if not directory.is_dir():
             return []
         outputs = {*RESULT_NAMES.values(), METRICS_NAME}
+        if any((directory / name).is_file() for name in VIDEO_NAMES):
+            outputs |= {TRACKS_NAME, INPUT_NAME}
         removed = []
         for entry in directory.iterdir():
             name = entry.name

@@ -34,9 +34,10 @@ from service.errors import BodyTimeout, InvalidInput, UnsupportedMediaType, Uplo
 from service.schemas import InputSummary, TracksBody
 from service.settings import Settings, describe_bytes
 from service.validation_messages import describe_errors
+from service.video_uploads import StagedVideo, stage_video, video_extension
 
 _FILE_FORMATS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv"}
-_FORM_FIELDS = ("file", "params")
+_FORM_FIELDS = ("file", "params", "mask")
 #: Longest 'params' part read when it comes as a file (every parameter fits in a few hundred).
 MAX_PARAMS_BYTES = 65536
 _TOO_DEEP = (
@@ -44,19 +45,29 @@ _TOO_DEEP = (
     "and parameters a flat object"
 )
 _HOW_TO_SEND = (
-    "send multipart/form-data with a 'file' field (npz, HDF5 or CSV) and an optional "
-    "'params' field (a JSON object), or application/json with 'tracks' (F x P x 2) and "
-    "'params'"
+    "send multipart/form-data with a 'file' field (npz, HDF5 or CSV, or a video: mp4, webm "
+    "or avi, with an optional 'mask' PNG) and an optional 'params' field (a JSON object), or "
+    "application/json with 'tracks' (F x P x 2) and 'params'"
 )
 
 
 @dataclass(frozen=True)
 class Submission:
-    """A validated job submission, ready to be stored and enqueued."""
+    """A validated job submission, ready to be stored and enqueued.
 
-    measurements: Measurements
+    Either ``measurements``, or for a video upload ``video`` (tracked by the worker); the
+    caller closes the submission (:meth:`close`) once it is stored.
+    """
+
+    measurements: Measurements | None
     params: SolverParams
     summary: InputSummary
+    video: StagedVideo | None = None
+
+    def close(self) -> None:
+        """Remove a staged video's temporary files (nothing for measurements)."""
+        if self.video is not None:
+            self.video.close()
 
 
 def _mebibytes(n_bytes: int) -> str:
@@ -183,8 +194,8 @@ async def _from_multipart(request: Request, settings: Settings) -> Submission:
     parser = MultiPartParser(
         request.headers,
         _limited_stream(request, settings.max_upload_bytes, timeout=settings.body_timeout),
-        # 'file', plus 'params' sent as a file part (curl -F params=@p.json).
-        max_files=2,
+        # 'file', 'mask', plus 'params' sent as a file part (curl -F params=@p.json).
+        max_files=3,
         # 'params', plus room for a 'file' sent as text so that it gets a clear message.
         max_fields=2,
     )
@@ -217,12 +228,50 @@ async def _from_multipart(request: Request, settings: Settings) -> Submission:
                 )
             params_field = text.decode("utf-8", errors="replace")
         params = _params_from_form(params_field)
+        filename = _display_name(upload.filename)
+        extension = video_extension(upload)
+        mask = form.get("mask")
+        if extension is not None:
+            return await _video_submission(upload, mask, extension, filename, params, settings)
+        if mask is not None:
+            raise InvalidInput(
+                "a 'mask' goes with a video upload only (mp4, webm or avi in 'file'); the "
+                "'file' is not a video"
+            )
         measurements, file_format = await anyio.to_thread.run_sync(_read_file, upload, settings)
         size = upload.size or 0
-        filename = _display_name(upload.filename)
     finally:
         await form.close()
     return _submission(measurements, params, file_format, filename, size)
+
+
+async def _video_submission(
+    upload: UploadFile,
+    mask: Any,
+    extension: str,
+    filename: str | None,
+    params: SolverParams,
+    settings: Settings,
+) -> Submission:
+    if mask is not None and not isinstance(mask, UploadFile):
+        raise InvalidInput("the 'mask' field must be a PNG file upload (curl: -F mask=@mask.png)")
+    if params.rotations == "known":
+        raise InvalidInput(
+            "params.rotations is 'known' but a video has no camera rotations; choose "
+            "rotations 'auto' (or leave it unset) to estimate them"
+        )
+    params = params.model_copy(update={"rotations": rotation_method(params.rotations, False)})
+    staged = await anyio.to_thread.run_sync(
+        stage_video, upload, mask, extension, filename, settings
+    )
+    try:
+        check_params_fit(
+            params, staged.summary.frames, staged.summary.points, has_rotations=False
+        )
+    except BaseException:
+        staged.close()
+        raise
+    return Submission(measurements=None, params=params, summary=staged.summary, video=staged)
 
 
 def _array(name: str, value: Any) -> np.ndarray:
@@ -440,5 +489,9 @@ async def read_submission(request: Request, settings: Settings) -> Submission:
         raise UploadTooLarge(str(exc)) from None
     except MeasurementError as exc:
         raise InvalidInput(str(exc)) from None
-    check_memory(submission.summary, settings.worker_memory_bytes)
+    try:
+        check_memory(submission.summary, settings.worker_memory_bytes)
+    except BaseException:
+        submission.close()
+        raise
     return submission

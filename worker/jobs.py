@@ -3,6 +3,9 @@
 Outcomes and what the user reads in the job's ``error``:
 
 * solver finished: status ``finished``, result in ``<data_dir>/jobs/<id>/result.h5``;
+* a video job runs a tracking stage first (progress stage ``tracking``, one report per
+  frame at most every 0.5 s): its tracks go to ``tracks.npz`` and, as solver input, to
+  ``input.npz``; a video the tracker cannot use fails the job with the tracker's message;
 * the input cannot be used (:class:`moju_core.errors.MeasurementError`): ``failed`` with the
   solver's message verbatim;
 * time limit (``MOJU_JOB_TIMEOUT``) exceeded: ``failed`` with "timed out: ..." and the limit;
@@ -17,6 +20,7 @@ Outcomes and what the user reads in the job's ``error``:
 from __future__ import annotations
 
 import logging
+import math
 import time
 import warnings
 from collections.abc import Callable
@@ -28,10 +32,19 @@ from redis.exceptions import ConnectionError as RedisConnectionError
 from redis.exceptions import TimeoutError as RedisTimeoutError
 from rq import get_current_job
 from rq.timeouts import JobTimeoutException
+from threadpoolctl import threadpool_limits
 
 from moju_core.errors import Cancelled, MeasurementError
+from moju_core.io import Measurements
 from moju_core.params import rotation_method
-from moju_core.result import Result
+from moju_core.result import Progress, Result
+from moju_core.tracking import (
+    DEFAULT_STEP,
+    TrackingProgress,
+    solvable_tracks,
+    track_video,
+    tracks_measurements,
+)
 from moju_core.validation import estimate_memory_bytes
 from service.connection import connect_redis
 from service.job_store import JobStore
@@ -73,8 +86,11 @@ def run_reconstruction(job_id: str) -> dict[str, Any]:
     )
 
 
-def _summary(result: Result, caught: list[warnings.WarningMessage]) -> dict[str, Any]:
+def _summary(
+    result: Result, caught: list[warnings.WarningMessage], tracking: dict[str, Any] | None
+) -> dict[str, Any]:
     return {
+        "tracking": tracking,
         "n_iter": int(result.n_iter),
         "stop_reason": str(result.stop_reason),
         "timings": {name: float(value) for name, value in result.timings.items()},
@@ -102,15 +118,87 @@ def _final_progress(result: Result, reporter: ProgressReporter) -> dict[str, Any
     }
 
 
+def _tracking_callback(reporter: ProgressReporter, n_frames: int, started: float):
+    """The tracker's callback: its progress as the job's stage ``tracking``."""
+
+    def report(progress: TrackingProgress) -> bool:
+        total = max(progress.n_frames or n_frames, progress.frame, 1)
+        elapsed = time.perf_counter() - started
+        eta = elapsed / progress.frame * (total - progress.frame) if progress.frame else None
+        stage = Progress(
+            stage="tracking",
+            iteration=progress.frame,
+            max_iter=total,
+            gap=math.nan,
+            rho=math.nan,
+            fraction=progress.frame / total,
+            elapsed=elapsed,
+            eta=eta,
+        )
+        return reporter(stage)
+
+    return report
+
+
+def _track(
+    record: JobRecord, storage: Storage, reporter: ProgressReporter, settings: Settings
+) -> tuple[Measurements, dict[str, Any]]:
+    """The tracking stage of a video job: tracks stored, returned as solver input."""
+    import cv2  # the tracker's; only video jobs need it
+
+    # OpenCV's own thread pool is outside threadpoolctl's reach: MOJU_WORKER_THREADS too.
+    cv2.setNumThreads(settings.worker_threads)
+    video, mask = storage.video_files(record.id)
+    step = record.input.video.step if record.input.video is not None else DEFAULT_STEP
+    started = time.perf_counter()
+    tracks = track_video(
+        video,
+        mask=mask,
+        step=step,
+        limits=settings.video_limits,
+        callback=_tracking_callback(reporter, record.input.frames, started),
+    )
+    seconds = time.perf_counter() - started
+    kept = solvable_tracks(tracks)
+    storage.write_tracks(record.id, kept)
+    measurements = tracks_measurements(kept)
+    storage.write_input(record.id, measurements)
+    logger.info(
+        "job %s: tracked %d frames in %.1f s, %d of %d tracks kept",
+        record.id,
+        tracks.n_frames,
+        seconds,
+        kept.n_points,
+        tracks.n_points,
+    )
+    summary = {
+        "tracks": tracks.n_points,
+        "reconstructed": kept.n_points,
+        "fraction_kept": tracks.fraction_kept,
+        "seconds": seconds,
+    }
+    return measurements, summary
+
+
 def _solve(
-    record: JobRecord, storage: Storage, reporter: ProgressReporter, threads: int
-) -> tuple[Result, list[warnings.WarningMessage]]:
+    record: JobRecord, storage: Storage, reporter: ProgressReporter, settings: Settings
+) -> tuple[Result, list[warnings.WarningMessage], dict[str, Any] | None]:
     from moju_core import reconstruct  # the solver loads scikit-learn; only workers need it
 
-    measurements = storage.read_input(record.id)
-    with warnings.catch_warnings(record=True) as caught:
-        # The user sees the solver's warnings in the job resource (result.warnings).
+    # BLAS/OpenMP threads per process (MOJU_WORKER_THREADS) for the tracker here, and for the
+    # solver through threads= below: N worker processes x T threads should not exceed the
+    # cores, or they slow each other down.
+    with (
+        threadpool_limits(limits=settings.worker_threads),
+        warnings.catch_warnings(record=True) as caught,
+    ):
+        # The user sees the tracker's and solver's warnings in the job resource.
         warnings.simplefilter("always")
+        tracking = None
+        if record.input.format == "video":
+            measurements, tracking = _track(record, storage, reporter, settings)
+        else:
+            measurements = storage.read_input(record.id)
         # The mask only when points are missing: complete data take the call as before.
         masked = {} if measurements.visibility is None else {"visibility": measurements.visibility}
         result = reconstruct(
@@ -118,14 +206,12 @@ def _solve(
             record.parameters,
             rotations=_known_rotations(record, measurements.rotations),
             callback=reporter,
-            # BLAS/OpenMP threads per process (MOJU_WORKER_THREADS): N worker processes x T
-            # threads should not exceed the cores, or they slow each other down.
-            threads=threads,
+            threads=settings.worker_threads,
             **masked,
         )
     for warning in caught:
         logger.warning("job %s: %s", record.id, warning.message)
-    return result, caught
+    return result, caught, tracking
 
 
 def _known_rotations(record: JobRecord, uploaded: np.ndarray | None) -> np.ndarray | None:
@@ -229,7 +315,7 @@ def _run_attempt(
     patience = settings.heartbeat_ttl
     started = time.monotonic()
     try:
-        result, caught = _solve(record, storage, reporter, settings.worker_threads)
+        result, caught, tracking = _solve(record, storage, reporter, settings)
         storage.write_result(
             job_id,
             result,
@@ -268,7 +354,7 @@ def _run_attempt(
         logger.exception("job %s: internal error", job_id)
         store.fail(job_id, f"internal error: {type(exc).__name__}: {exc}", attempt)
         raise
-    summary, final = _summary(result, caught), _final_progress(result, reporter)
+    summary, final = _summary(result, caught, tracking), _final_progress(result, reporter)
     if not _until_redis_answers(
         lambda: store.finish(job_id, summary, final, attempt), patience, job_id
     ):

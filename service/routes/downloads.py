@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pathlib
 import zipfile
 from collections.abc import Iterator
 from typing import Annotated, Literal
@@ -13,11 +14,12 @@ from fastapi.responses import FileResponse, Response, StreamingResponse
 from moju_core.metrics import evaluate
 from moju_core.ply import frame_file_name, ply_bytes
 from service.deps import Caller, JobId, Services, ServicesDep, get_caller
-from service.errors import FrameOutOfRange, JobNotFinished, NoGroundTruth
+from service.errors import FrameOutOfRange, JobNotFinished, NoGroundTruth, NotAVideoJob
 from service.routes.jobs import UNAUTHORIZED, load_record
 from service.schemas import ErrorBody, JobRecord, Metrics
 from service.states import JobStatus
 from service.storage import JobFilesMissing
+from service.track_overlay import overlay_png
 
 router = APIRouter(
     prefix="/v1/jobs",
@@ -249,3 +251,101 @@ def get_job_metrics(job_id: JobId, services: ServicesDep, caller: Caller) -> Met
         cached = _compute_metrics(services, job_id)
         services.storage.write_metrics(job_id, cached)
     return Metrics(**cached)
+
+
+def _video_record(services: Services, job_id: UUID, owner: str) -> JobRecord:
+    record = load_record(services, job_id, owner)
+    if record.input.format != "video":
+        raise NotAVideoJob(
+            f"job {job_id} was submitted as {record.input.format} measurements, not a video, "
+            "so it has no tracks or frames of its own"
+        )
+    return record
+
+
+@router.get(
+    "/{job_id}/tracks.npz",
+    operation_id="download_tracks",
+    summary="Download a video job's 2D tracks",
+    description=(
+        "The tracker's output, as written by `moju track`: W (2F x P float64, pixel "
+        "positions, x right, y down, NaN where a track is lost), visibility (F x P bool), "
+        "colors (P x 3 uint8, from the first frame) and frame_size (width, height). Its P "
+        "tracks are the points of the result (tracks seen in one frame only are left out). "
+        "Ready once the tracking stage is over, before the solve ends; 404 for a job that was "
+        "not a video upload.\n\n"
+        f"    curl -o tracks.npz {_EXAMPLE}/tracks.npz"
+    ),
+    response_class=FileResponse,
+    responses={
+        200: {
+            "description": "The tracks file.",
+            "content": {
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}
+            },
+        },
+        404: {"model": ErrorBody, "description": "No such job, or not a video job."},
+        409: {"model": ErrorBody, "description": "The tracking stage has not ended (or failed)."},
+    },
+)
+def download_tracks(job_id: JobId, services: ServicesDep, caller: Caller) -> FileResponse:
+    """The tracks of a video job."""
+    record = _video_record(services, job_id, caller)
+    path = _tracks_path(services, record)
+    return FileResponse(
+        path, media_type="application/octet-stream", filename=f"moju-{job_id}-tracks.npz"
+    )
+
+
+def _tracks_path(services: Services, record: JobRecord) -> pathlib.Path:
+    """The job's tracks file, or 409 saying why there is none yet."""
+    job_id = record.id
+    try:
+        return services.storage.tracks_file(job_id)
+    except JobFilesMissing:
+        if record.status is JobStatus.FAILED:
+            raise JobNotFinished(
+                f"job {job_id} failed before its tracks were written: {record.error}"
+            ) from None
+        raise JobNotFinished(
+            f"job {job_id} is {record.status.value} and its tracking stage has not ended; "
+            f"wait until its progress stage is past 'tracking' (GET /v1/jobs/{job_id})"
+        ) from None
+
+
+@router.get(
+    "/{job_id}/first-frame.png",
+    operation_id="download_first_frame",
+    summary="The first frame of a video job",
+    description=(
+        "The video's first frame as PNG, decoded when it was uploaded: the frame the tracks "
+        "start on (their pixel coordinates are this image's). With `overlay=tracks`, the "
+        "tracks are drawn on it (each one's path over the frames, in green, with a red dot "
+        "where it was last seen; 409 before the tracking stage has ended). 404 for a job "
+        "that was not a video upload.\n\n"
+        f"    curl -o first-frame.png '{_EXAMPLE}/first-frame.png?overlay=tracks'"
+    ),
+    response_class=Response,
+    responses={
+        200: {
+            "description": "The PNG image.",
+            "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}},
+        },
+        404: {"model": ErrorBody, "description": "No such job, or not a video job."},
+        409: {"model": ErrorBody, "description": "Tracks asked for before they exist."},
+    },
+)
+def download_first_frame(
+    job_id: JobId,
+    services: ServicesDep,
+    caller: Caller,
+    overlay: Annotated[
+        Literal["none", "tracks"], Query(description="Draw the tracks on the frame.")
+    ] = "none",
+) -> Response:
+    """The first frame of a video job, with or without its tracks."""
+    record = _video_record(services, job_id, caller)
+    frame = services.storage.first_frame_file(job_id)
+    if overlay == "none":
+        return FileResponse(frame, media_type="image/png")
+    return Response(overlay_png(frame, _tracks_path(services, record)), media_type="image/png")

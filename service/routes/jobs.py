@@ -15,7 +15,6 @@ import anyio.to_thread
 from fastapi import APIRouter, Depends, Query, Request, Response, status
 from fastapi.responses import StreamingResponse
 
-from moju_core.io import Measurements
 from moju_core.params import SolverParams
 from service import queueing
 from service.deps import Caller, JobId, Services, ServicesDep, get_caller
@@ -29,7 +28,7 @@ from service.schemas import (
     TracksBody,
 )
 from service.states import JobStatus
-from service.uploads import read_submission
+from service.uploads import Submission, read_submission
 
 logger = logging.getLogger(__name__)
 
@@ -71,6 +70,7 @@ def job_resource(record: JobRecord) -> JobResource:
         result=f"{base}/result?format=h5",
         frames_zip=f"{base}/frames.zip",
         metrics=f"{base}/metrics" if record.input.has_ground_truth else None,
+        tracks=f"{base}/tracks.npz" if record.input.format == "video" else None,
     )
     return JobResource(**dict(record), links=links)
 
@@ -108,9 +108,9 @@ def _reserve_slot(services: Services, record: JobRecord) -> None:
     )
 
 
-def _store_and_enqueue(services: Services, record: JobRecord, measurements: Measurements) -> None:
-    """Take a queue slot, write the input, then the record and the queue entry in one Redis
-    transaction. Nothing is left behind when any step fails."""
+def _store_and_enqueue(services: Services, record: JobRecord, submission: Submission) -> None:
+    """Take a queue slot, write the input (or move the video in), then the record and the
+    queue entry in one Redis transaction. Nothing is left behind when any step fails."""
     _reserve_slot(services, record)
     try:
         services.storage.create(record.id)
@@ -118,7 +118,7 @@ def _store_and_enqueue(services: Services, record: JobRecord, measurements: Meas
         services.store.release(record.owner, record.id)
         raise
     try:
-        services.storage.write_input(record.id, measurements)
+        _write_upload(services, record, submission)
         with services.redis.pipeline(transaction=True) as pipe:
             pipe.multi()  # explicit MULTI first: RQ adds its commands to an open transaction
             services.store.add(record, pipe)
@@ -131,6 +131,16 @@ def _store_and_enqueue(services: Services, record: JobRecord, measurements: Meas
         except Exception:  # Redis is down: the slot is reclaimed later (JobStore.reserve)
             logger.warning("job %s: could not give back its queue slot", record.id)
         raise
+
+
+def _write_upload(services: Services, record: JobRecord, submission: Submission) -> None:
+    video = submission.video
+    if video is not None:
+        services.storage.write_video(record.id, video.video, video.mask, video.first_frame)
+    elif submission.measurements is not None:
+        services.storage.write_input(record.id, submission.measurements)
+    else:  # read_submission gives one or the other
+        raise ValueError("a submission holds measurements or a video")
 
 
 _SUBMIT_BODY: dict[str, Any] = {
@@ -159,7 +169,22 @@ _SUBMIT_BODY: dict[str, Any] = {
                                 "header frame,point,x,y, one row per observed point and "
                                 "frame (a missing row is an unobserved point). Every point "
                                 "must be observed in 2 frames or more, every frame must "
-                                "observe 3 points or more."
+                                "observe 3 points or more. Or a video (mp4, webm or avi, "
+                                "recognised by its content; at most MOJU_MAX_VIDEO_BYTES, "
+                                "MOJU_MAX_VIDEO_WIDTH x MOJU_MAX_VIDEO_HEIGHT pixels, "
+                                "MOJU_MAX_VIDEO_FRAMES frames and MOJU_MAX_VIDEO_SECONDS): "
+                                "the job then tracks it (every frame, a grid every 4 pixels "
+                                "on the object) before the solve."
+                            ),
+                        },
+                        "mask": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": (
+                                "With a video only: PNG of the first frame's size whose "
+                                "non-zero pixels (or alpha) mark the object to track. "
+                                "Without one the textured region of the first frame is "
+                                "tracked."
                             ),
                         },
                         "params": {
@@ -169,7 +194,10 @@ _SUBMIT_BODY: dict[str, Any] = {
                         },
                     },
                 },
-                "encoding": {"file": {"contentType": "application/octet-stream"}},
+                "encoding": {
+                    "file": {"contentType": "application/octet-stream"},
+                    "mask": {"contentType": "image/png"},
+                },
             },
             "application/json": {
                 "schema": {"$ref": "#/components/schemas/TracksBody"},
@@ -267,7 +295,10 @@ async def create_job(
         parameters=submission.params,
         input=submission.summary,
     ).owned_by(caller)
-    await anyio.to_thread.run_sync(_store_and_enqueue, services, record, submission.measurements)
+    try:
+        await anyio.to_thread.run_sync(_store_and_enqueue, services, record, submission)
+    finally:
+        submission.close()
     logger.info(
         "job %s queued for %s: %d frames x %d points",
         record.id,

@@ -222,6 +222,10 @@
     }
     const body = new FormData();
     body.append("file", file, file.name);
+    const mask = $("#mask").files[0];
+    if (mask) {
+      body.append("mask", mask, mask.name);
+    }
     try {
       body.append("params", JSON.stringify(formParameters()));
     } catch (error) {
@@ -279,6 +283,8 @@
       const parts = [p.stage];
       if (p.stage === "iterating") {
         parts.push(`iteration ${p.iteration} / ${p.max_iter}`);
+      } else if (p.stage === "tracking") {
+        parts.push(`frame ${p.iteration} / ${p.max_iter}`);
       }
       if (p.gap !== null && p.gap !== undefined) {
         parts.push(`gap ${p.gap.toExponential(2)}`);
@@ -306,6 +312,9 @@
         ["HDF5", `/v1/jobs/${job.id}/result?format=h5`],
         ["PLY zip", `/v1/jobs/${job.id}/frames.zip`],
       ];
+      if (job.links && job.links.tracks) {
+        downloads.push(["tracks", job.links.tracks]);
+      }
       for (const [label, href] of downloads) {
         const link = element("a", { href, download: "", class: "download" }, label);
         link.addEventListener("click", (event) => {
@@ -550,7 +559,36 @@
       $("#viewer-container"), MojuViewer.httpSource(id, undefined, authHeaders()),
     );
     state.viewer.load();
+    showFirstFrame(job || id);
     section.scrollIntoView({ behavior: "smooth", block: "start" });
+  }
+
+  /** Beside the 3D shape: a video job's first frame with its tracks drawn on it. */
+  async function showFirstFrame(jobOrId) {
+    const figure = $("#viewer-frame");
+    const image = $("#viewer-frame-image");
+    figure.hidden = true;
+    if (image.src.startsWith("blob:")) {
+      URL.revokeObjectURL(image.src);
+    }
+    image.removeAttribute("src");
+    try {
+      // Opened from the address before the job list arrived: read the job first.
+      const job = typeof jobOrId === "string" ? await api("GET", `/v1/jobs/${jobOrId}`) : jobOrId;
+      if (job.input.format !== "video") {
+        return;
+      }
+      const response = await fetch(`/v1/jobs/${job.id}/first-frame.png?overlay=tracks`, {
+        headers: authHeaders(),
+      });
+      if (!response.ok || state.viewedId !== job.id) {
+        return;
+      }
+      image.src = URL.createObjectURL(await response.blob());
+      figure.hidden = false;
+    } catch (error) {
+      // The 3D view works without the frame; nothing to report.
+    }
   }
 
   function setUpKeyField() {

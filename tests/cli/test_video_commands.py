@@ -15,6 +15,7 @@ from click.testing import CliRunner
 import moju_cli.video_commands as video_commands
 from moju_cli.main import cli
 from moju_core.render import render_sequence, score_tracks, write_video
+from moju_core.video import open_video
 
 N_FRAMES = 12
 
@@ -144,3 +145,92 @@ def test_track_without_opencv_says_how_to_install(files, tmp_path, monkeypatch):
     outcome = _run("track", str(files["video"]), "-o", str(tmp_path / "t.npz"))
     assert outcome.exit_code == 1
     assert "pip install 'moju[video]'" in outcome.stderr
+
+
+# --- moju reconstruct VIDEO ---------------------------------------------------------------
+
+
+def _ply_colors(path):
+    from plyfile import PlyData
+
+    vertex = PlyData.read(str(path))["vertex"]
+    return np.stack([vertex["red"], vertex["green"], vertex["blue"]], axis=1)
+
+
+def test_reconstruct_video_writes_tracks_shapes_and_coloured_ply(files, rendered, tmp_path):
+    output, ply = tmp_path / "result.npz", tmp_path / "ply"
+    outcome = _run(
+        "reconstruct", str(files["video"]), "--mask", str(files["mask"]), "-o", str(output),
+        "--ply-dir", str(ply), "--step", "8", "--max-iter", "3", "--quiet",
+    )  # fmt: skip
+    assert outcome.exit_code == 0, outcome.output
+    tracks_path = tmp_path / "result.tracks.npz"
+    with np.load(tracks_path, allow_pickle=False) as data:
+        W, visibility, colors = data["W"], data["visibility"], data["colors"]
+    n_points = W.shape[1]
+    assert W.shape[0] == 2 * N_FRAMES and n_points > 20
+    assert np.all(visibility.sum(axis=0) >= 2)  # every written track can be solved
+    assert not visibility.all()  # the paper rolls away: some tracks are lost, solved as missing
+    start = W[:2].T.astype(np.int64)
+    first = next(open_video(files["video"]).frames())  # as decoded: mp4 is lossy
+    np.testing.assert_array_equal(colors, first[start[:, 1], start[:, 0]])
+    assert rendered.mask[start[:, 1], start[:, 0]].all()
+    with np.load(output, allow_pickle=False) as result:
+        assert result["shapes"].shape == (N_FRAMES, n_points, 3)
+        assert np.isfinite(result["shapes"]).all()
+        np.testing.assert_array_equal(result["visibility"], visibility)
+    frames = sorted(ply.iterdir())
+    assert len(frames) == N_FRAMES
+    np.testing.assert_array_equal(_ply_colors(frames[-1]), colors)
+    lines = outcome.stdout.splitlines()
+    assert f" tracks over {N_FRAMES} frames: " in lines[0]
+    assert any(line.startswith(f"{N_FRAMES} frames x {n_points} points (") for line in lines)
+    assert f"tracks: {tracks_path}" in lines and f"result: {output}" in lines
+
+
+def test_reconstruct_image_folder_with_start_and_end(rendered, tmp_path):
+    from moju_core.render import write_image_folder
+
+    folder = tmp_path / "frames"
+    write_image_folder(folder, rendered.frames)
+    output = tmp_path / "part.h5"
+    outcome = _run(
+        "reconstruct", str(folder), "-o", str(output), "--step", "8", "--start", "2",
+        "--end", "8", "--max-iter", "2", "-q",
+    )  # fmt: skip
+    assert outcome.exit_code == 0, outcome.output
+    assert "warning: no mask given" in outcome.stderr
+    with np.load(tmp_path / "part.tracks.npz") as data:
+        assert data["W"].shape[0] == 2 * 6
+        assert np.all(data["W"][0][np.isfinite(data["W"][0])] % 8 == 4)
+    assert output.exists()
+
+
+def test_reconstruct_refuses_a_bad_video_and_writes_nothing(tmp_path):
+    video = tmp_path / "bad.mp4"
+    video.write_text("hello")
+    outcome = _run("reconstruct", str(video), "-o", str(tmp_path / "r.npz"), "-q")
+    assert outcome.exit_code == 1
+    assert "could not be opened as a video" in outcome.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mp4"]
+
+
+def test_reconstruct_refuses_tracking_options_for_a_measurement_file(tmp_path):
+    from moju_core.datasets import make_sequence
+    from moju_core.io import Measurements, write_measurements
+
+    data = make_sequence("face1", n_points=50)
+    write_measurements(tmp_path / "in.npz", Measurements(W=data.W))
+    outcome = _run("reconstruct", str(tmp_path / "in.npz"), "-o", str(tmp_path / "r.npz"),
+                   "--step", "8")  # fmt: skip
+    assert outcome.exit_code == 2
+    assert "--step only apply to a video input" in outcome.stderr
+    assert not (tmp_path / "r.npz").exists()
+
+
+def test_reconstruct_video_refuses_known_rotations(files, tmp_path):
+    outcome = _run("reconstruct", str(files["video"]), "-o", str(tmp_path / "r.npz"),
+                   "--rotations", "known")  # fmt: skip
+    assert outcome.exit_code == 2
+    assert "a video does not have" in outcome.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -116,3 +116,14 @@ def test_a_point_seen_in_one_frame_only_is_refused_with_a_message(face):
     visibility[1:, 7] = False
     with pytest.raises(MeasurementError, match="frame"):
         reconstruct(_with_nan(face.W, visibility), SolverParams(max_iter=5))
+
+
+def test_the_smoothness_trials_fit_the_observed_entries_only():
+    # With the completion's errors counted as misfit the rule chose 0.1 instead of 100 on the
+    # rolling sheet with 10 % dropout (e3D 0.068 against 0.012).
+    data = make_sequence("paper", n_points=600, seed=0)
+    visibility = occlusion_mask(data, band=0.0, lost=0.0, dropout=0.1, seed=0)
+    params = SolverParams(seed=0, rotations="known", max_iter=1)
+    complete = reconstruct(data.W, params, rotations=data.rotations)
+    masked = reconstruct(_with_nan(data.W, visibility), params, rotations=data.rotations)
+    assert masked.params.smoothness == complete.params.smoothness > 1.0

@@ -16,6 +16,8 @@ EXPECTED_OPERATIONS = {
     ("get", "/v1/jobs/{job_id}/frames/{frame}.ply"): "download_frame_ply",
     ("get", "/v1/jobs/{job_id}/frames.zip"): "download_frames_zip",
     ("get", "/v1/jobs/{job_id}/metrics"): "get_job_metrics",
+    ("get", "/v1/jobs/{job_id}/tracks.npz"): "download_tracks",
+    ("get", "/v1/jobs/{job_id}/first-frame.png"): "download_first_frame",
     ("get", "/v1/jobs/{job_id}/viewer-data"): "get_viewer_data",
     ("get", "/v1/jobs/{job_id}/viewer-data/frames/{frame}"): "get_viewer_frame",
     ("get", "/healthz"): "health",

@@ -54,6 +54,7 @@ def test_npz_upload_is_accepted_stored_and_queued(
         "has_faces": True,
         "has_colors": True,
         "observed_fraction": 1.0,
+        "video": None,
     }
     assert job["started_at"] is None and job["progress"] is None and job["error"] is None
     assert job["links"]["metrics"] == f"/v1/jobs/{job['id']}/metrics"
