@@ -14,8 +14,11 @@ class Stage(StrEnum):
     """Stage of a solve in :attr:`Progress.stage`, in the order they happen.
 
     A ``str``: ``Stage.ITERATING == "iterating"``, and it is written as its value.
+    ``TRACKING`` is reported for video inputs only, by the tracker before the solve; the
+    others by :func:`moju_core.reconstruct`.
     """
 
+    TRACKING = "tracking"
     VALIDATING = "validating"
     ROTATIONS = "rotations"
     INITIALISING = "initialising"

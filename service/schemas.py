@@ -105,9 +105,9 @@ class ProgressReport(BaseModel):
 
     stage: str = Field(
         description=(
-            "One of tracking (video jobs: the tracker's stage, before the solve), "
+            "One of "
             + ", ".join([*Stage, "finished"])
-            + "."
+            + " (tracking: video jobs only, the tracker's stage before the solve)."
         ),
         examples=["iterating"],
     )

@@ -37,7 +37,7 @@ from threadpoolctl import threadpool_limits
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.io import Measurements
 from moju_core.params import rotation_method
-from moju_core.result import Progress, Result
+from moju_core.result import Progress, Result, Stage
 from moju_core.tracking import (
     DEFAULT_STEP,
     TrackingProgress,
@@ -126,7 +126,7 @@ def _tracking_callback(reporter: ProgressReporter, n_frames: int, started: float
         elapsed = time.perf_counter() - started
         eta = elapsed / progress.frame * (total - progress.frame) if progress.frame else None
         stage = Progress(
-            stage="tracking",
+            stage=Stage.TRACKING,
             iteration=progress.frame,
             max_iter=total,
             gap=math.nan,
