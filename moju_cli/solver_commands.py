@@ -24,7 +24,6 @@ import click
 import numpy as np
 from pydantic import ValidationError
 from pydantic.fields import FieldInfo
-from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from moju_core import defaults
@@ -33,7 +32,7 @@ from moju_core.errors import MeasurementError
 from moju_core.io import Measurements, read_measurements, read_result, write_measurements
 from moju_core.io import write_result as write_result_file
 from moju_core.metrics import evaluate as evaluate_scores
-from moju_core.params import SolverParams
+from moju_core.params import SolverParams, rotation_method
 from moju_core.ply import frame_file_name, write_ply_frames
 from moju_core.result import Progress, Result
 from moju_core.tracking import DEFAULT_STEP, solvable_tracks, tracks_measurements, write_tracks
@@ -76,7 +75,10 @@ SCORE_LABELS = {
 }
 
 # Command-line additions to a field's schema description, where the CLI adds a meaning.
-_CLI_NOTES = {"rotations": "'known' reads the rotations from the dataset R of INPUT."}
+_CLI_NOTES = {
+    "rotations": "'known' (and the default, when INPUT has one) uses the dataset R of INPUT; "
+    "with an estimating method, R is only scored against."
+}
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -240,11 +242,13 @@ def _solve(
 
     bar = _ProgressBar(params, enabled=not quiet)
     try:
-        with threadpool_limits(limits=threads), warnings.catch_warnings():
+        with warnings.catch_warnings():
             warnings.showwarning = bar.warn
             # Complete data go through the call as before; a mask only when something is missing.
             masked = {} if visibility is None else {"visibility": visibility}
-            return reconstruct(W, params, rotations=rotations, callback=bar, **masked)
+            return reconstruct(
+                W, params, rotations=rotations, callback=bar, threads=threads, **masked
+            )
     except MeasurementError as exc:
         raise click.ClickException(str(exc)) from exc
     finally:
@@ -479,7 +483,7 @@ def reconstruct(
     if video and params.rotations == "known":
         raise click.UsageError(
             "--rotations known needs camera rotations, which a video does not have; use "
-            "--rotations auto (the default) to estimate them"
+            "--rotations auto (or leave it unset) to estimate them"
         )
     outputs = _Outputs()
     tracks_path = None
@@ -501,14 +505,16 @@ def reconstruct(
                 measurements = read_measurements(input_file)
             except MeasurementError as exc:
                 raise click.ClickException(str(exc)) from exc
-        known = params.rotations == "known"
+        # The library's rule: R of INPUT is used unless an estimating method is named, in
+        # which case R is only the truth the estimated rotations are scored against.
+        method = rotation_method(params.rotations, measurements.rotations is not None)
+        known = method == "known"
         if known and measurements.rotations is None:
             raise click.ClickException(
                 f"--rotations known needs the camera rotations, but {Path(input_file).name} "
                 f"has no dataset R (shape {measurements.n_frames} x 2 x 3); add it, or use "
                 "--rotations auto to estimate them"
             )
-        # R in the input is only used when asked for: the schema's default is to estimate.
         result = _solve(
             measurements.W,
             params,

@@ -1,21 +1,24 @@
 """moju_core: dense non-rigid structure from motion by MoJu (Kumar, CVPR 2019).
 
-The one entry point is :func:`reconstruct`; parameters are :class:`SolverParams`, the answer is
-a :class:`Result`.
+The functional entry point is :func:`reconstruct`; parameters are :class:`SolverParams`, the
+answer is a :class:`Result`. :class:`MoJu` is the same solver as a scikit-learn estimator.
 """
 
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams
-from moju_core.result import Progress, Result
+from moju_core.result import Progress, Result, Stage, StopReason
 
 __version__ = "0.1.0"
 
 __all__ = [
     "Cancelled",
     "MeasurementError",
+    "MoJu",
     "Progress",
     "Result",
     "SolverParams",
+    "Stage",
+    "StopReason",
     "__version__",
     "reconstruct",
 ]
@@ -27,4 +30,8 @@ def __getattr__(name: str):
         from moju_core.solver import reconstruct
 
         return reconstruct
+    if name == "MoJu":
+        from moju_core.estimator import MoJu
+
+        return MoJu
     raise AttributeError(name)

@@ -36,15 +36,17 @@ class SolverParams(BaseModel):
             "(Akhter et al.'s point trajectory approach, no iterations)."
         ),
     )
-    rotations: RotationMethod = Field(
-        "auto",
+    rotations: RotationMethod | None = Field(
+        None,
         description=(
-            "How camera rotations are obtained: 'intersection' (Dai et al.'s method), "
+            "How camera rotations are obtained. Unset: 'known' when rotations are supplied "
+            "with the input, else 'auto'. 'intersection' (Dai et al.'s method), "
             "'windowed' (rigid factorisations of short windows of frames, chained, then "
             "refined with the shapes; for a camera that turns fast relative to the "
             "deformation), 'auto' (intersection, unless the windowed rotations explain the "
             "tracks as nearly rigid over every three frames far better), 'rigid' "
-            "(Tomasi-Kanade with metric upgrade) or 'known' (supplied with the input)."
+            "(Tomasi-Kanade with metric upgrade) or 'known' (supplied with the input; an "
+            "estimating method with supplied rotations is refused as a contradiction)."
         ),
     )
     n_bases: int | None = Field(
@@ -133,3 +135,18 @@ class SolverParams(BaseModel):
     rho_max: float = Field(1e8, gt=0, le=1e12, description="Largest penalty parameter.")
     rho_growth: float = Field(1.1, gt=1.0, le=10.0, description="Penalty growth factor c.")
     seed: int = Field(0, ge=0, le=2**32 - 1, description="Seed of every random choice.")
+
+
+def rotation_method(requested: RotationMethod | None, has_rotations: bool) -> RotationMethod:
+    """The rotation method a solve uses: the one rule of the library, the CLI and the service.
+
+    ``requested`` is ``SolverParams.rotations``; ``has_rotations`` says whether camera rotations
+    come with the input (a ``rotations=`` array, or a dataset ``R`` in a file). Unset
+    (``None``) means ``"known"`` when they do and ``"auto"`` when they do not; a named method
+    is used as it is. Whether the named method and the input agree (``"known"`` without
+    rotations, an estimator with rotations) is for the caller to judge: a file's ``R`` may be
+    ground truth to score estimated rotations against.
+    """
+    if requested is not None:
+        return requested
+    return "known" if has_rotations else "auto"

@@ -10,7 +10,7 @@ from threadpoolctl import threadpool_limits
 
 from moju_core import __version__, admm, camera, cameras, clustering, defaults, lrr, missing, pta
 from moju_core.errors import Cancelled, MeasurementError
-from moju_core.params import SolverParams
+from moju_core.params import SolverParams, rotation_method
 from moju_core.preprocessing import normalise
 from moju_core.result import Progress, Result
 from moju_core.rotations import noise_variance, significant_rank, spectrum
@@ -68,7 +68,7 @@ def reconstruct(
     rotations: np.ndarray | None = None,
     visibility: np.ndarray | None = None,
     callback: ProgressCallback | None = None,
-    threads: int | None = 1,
+    threads: int | None = None,
 ) -> Result:
     """Recover camera rotations and per-frame 3D shapes from dense 2D tracks.
 
@@ -82,8 +82,10 @@ def reconstruct(
         Solver parameters; ``None`` means all defaults (every ``None`` field is derived from
         the data, see :mod:`moju_core.defaults`).
     rotations : array_like of shape (F, 2, 3), optional
-        Known camera rotations. Required when ``params.rotations == "known"``; when given and
-        ``params.rotations`` was not set explicitly, they are used (``rotations="known"``).
+        Known camera rotations. Used exactly when ``params.rotations`` is ``"known"`` or unset
+        (``None``, the default: ``"known"`` when rotations are given, else ``"auto"``; see
+        :func:`moju_core.params.rotation_method`). ``"known"`` without them, or an estimating
+        method (``"auto"``, ``"intersection"``, ...) with them, raises MeasurementError.
     visibility : array_like of shape (F, P), bool, optional
         True where point j is observed in frame f; it must agree with the NaN of W. The data
         term then runs over the observed entries only, and the shapes of every point in every
@@ -92,11 +94,16 @@ def reconstruct(
         ``callback(progress: Progress) -> bool | None``, called at every stage change and
         every iteration; returning True stops the solver, which raises
         :class:`~moju_core.errors.Cancelled`.
-    threads : int or None, default 1
-        BLAS threads while solving (through threadpoolctl); ``None`` leaves the process's
-        setting alone. One by default: the loop is many medium-sized products and memory-bound
-        passes, and on a 2-core machine two OpenBLAS threads made it 4-10 times slower as soon
-        as any other process was busy (``benchmarks/speed.py`` measures both).
+    threads : int or None, default None
+        BLAS/OpenMP threads of the solve. ``None`` leaves the caller's setting alone: the solve
+        runs on whatever limit is in force where it is called (``threadpoolctl``'s
+        ``threadpool_limits`` around the call, ``OPENBLAS_NUM_THREADS``, or the library's
+        default of one thread per core). An int sets that limit for the duration of the call
+        only. The ``moju`` CLI (``--threads``, default 1) and the service's workers
+        (``MOJU_WORKER_THREADS``, default 1) pass theirs: the loop is many medium-sized
+        products and memory-bound passes, and on a 2-core machine two OpenBLAS threads made
+        it 4-10 times slower as soon as any other process was busy (``benchmarks/speed.py``
+        measures both).
 
     Returns
     -------
@@ -125,8 +132,7 @@ def _reconstruct(
     callback: ProgressCallback | None,
 ) -> Result:
     params = params if params is not None else SolverParams()
-    if rotations is not None and "rotations" not in params.model_fields_set:
-        params = params.model_copy(update={"rotations": "known"})
+    params = _resolve_rotation_method(params, rotations is not None)
     report = _Reporter(callback, params.max_iter)
     timings: dict[str, float] = {}
     start = time.perf_counter()
@@ -163,6 +169,8 @@ def _reconstruct(
             centred, params.rotations, n_bases=params.n_bases, seed=params.seed, singular=singular
         )
         rotations = estimate.rotations
+        # Result.params records what "auto" chose, so that it can be run again as it ran.
+        params = params.model_copy(update={"rotations": estimate.source})
     n_bases = estimate.n_bases if estimate.n_bases is not None else params.n_bases
     timings["rotations"] = time.perf_counter() - tic
 
@@ -251,6 +259,17 @@ def _reconstruct(
             **({"pta": out.extras["pta"]} if "pta" in out.extras else {}),
         },
     )
+
+
+def _resolve_rotation_method(params: SolverParams, given: bool) -> SolverParams:
+    """``params`` with the rotation method resolved; refuse rotations an estimator would ignore."""
+    method = rotation_method(params.rotations, given)
+    if given and method != "known":
+        raise MeasurementError(
+            f"rotations were given but params.rotations is {method!r}, which estimates them: "
+            "set rotations='known' (or leave it unset) to use them, or do not pass them"
+        )
+    return params.model_copy(update={"rotations": method})
 
 
 def _trajectory_basis(

@@ -14,6 +14,7 @@ from uuid import UUID
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator
 
 from moju_core.params import SolverParams
+from moju_core.result import Stage, StopReason
 from service.states import JobStatus
 
 _EXAMPLE_ID = "0b7e9f6c-3a51-4f0e-9d7c-2c1e8a4b5d60"
@@ -104,8 +105,9 @@ class ProgressReport(BaseModel):
 
     stage: str = Field(
         description=(
-            "One of tracking (video jobs: the tracker's stage, before the solve), "
-            "validating, rotations, initialising, iterating, finishing, finished."
+            "One of "
+            + ", ".join([*Stage, "finished"])
+            + " (tracking: video jobs only, the tracker's stage before the solve)."
         ),
         examples=["iterating"],
     )
@@ -147,7 +149,9 @@ class ResultSummary(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     n_iter: int = Field(description="ADMM iterations run.", examples=[120])
-    stop_reason: str = Field(description="converged, rho_max or max_iter.", examples=["converged"])
+    stop_reason: StopReason = Field(
+        description="Why the loop stopped: " + ", ".join(StopReason) + ".", examples=["converged"]
+    )
     timings: dict[str, float] = Field(
         description="Seconds per solver stage.", examples=[{"total": 1.2}]
     )

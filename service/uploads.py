@@ -27,7 +27,7 @@ from starlette.requests import Request
 from moju_core import defaults
 from moju_core.errors import MeasurementError, MeasurementTooLarge
 from moju_core.io import Measurements, read_measurements
-from moju_core.params import SolverParams
+from moju_core.params import SolverParams, rotation_method
 from moju_core.rotations import min_frames_for_bases
 from moju_core.validation import estimate_memory_bytes, tracks_to_W
 from service.errors import BodyTimeout, InvalidInput, UnsupportedMediaType, UploadTooLarge
@@ -258,8 +258,9 @@ async def _video_submission(
     if params.rotations == "known":
         raise InvalidInput(
             "params.rotations is 'known' but a video has no camera rotations; choose "
-            "rotations 'auto' (the default) to estimate them"
+            "rotations 'auto' (or leave it unset) to estimate them"
         )
+    params = params.model_copy(update={"rotations": rotation_method(params.rotations, False)})
     staged = await anyio.to_thread.run_sync(
         stage_video, upload, mask, extension, filename, settings
     )
@@ -357,6 +358,10 @@ def _submission(
             "to the file (or 'rotations' to the JSON body), or choose rotations 'auto' to "
             "estimate them"
         )
+    # The job record shows the resolved method ("known" or the estimator), not "unset".
+    params = params.model_copy(
+        update={"rotations": rotation_method(params.rotations, measurements.rotations is not None)}
+    )
     check_params_fit(
         params,
         measurements.n_frames,
@@ -387,16 +392,15 @@ def check_params_fit(
     nobody a queue slot, and the user hears at once. Only sizes are compared here; the data
     itself is judged by the solver.
     """
-    uses_known = params.rotations == "known" or (
-        has_rotations and "rotations" not in params.model_fields_set
-    )
+    method = rotation_method(params.rotations, has_rotations)
+    uses_known = method == "known"
     if not uses_known and n_frames < 3:
         raise InvalidInput(
-            f"estimating the camera rotations (rotations '{params.rotations}') needs at least "
+            f"estimating the camera rotations (rotations '{method}') needs at least "
             f"3 frames; the input has {n_frames}. Send more frames, or upload the rotations R "
             "(F x 2 x 3) and use rotations 'known'"
         )
-    uses_intersection = params.rotations in ("auto", "intersection")
+    uses_intersection = method in ("auto", "intersection")
     if not uses_known and uses_intersection and params.n_bases is not None:
         needed = min_frames_for_bases(params.n_bases)
         if n_frames < needed or n_points < 3 * params.n_bases + 1:

@@ -27,6 +27,7 @@ from collections.abc import Callable
 from typing import Any
 from uuid import UUID
 
+import numpy as np
 from redis.exceptions import ConnectionError as RedisConnectionError
 from redis.exceptions import TimeoutError as RedisTimeoutError
 from rq import get_current_job
@@ -35,7 +36,8 @@ from threadpoolctl import threadpool_limits
 
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.io import Measurements
-from moju_core.result import Progress, Result
+from moju_core.params import rotation_method
+from moju_core.result import Progress, Result, Stage
 from moju_core.tracking import (
     DEFAULT_STEP,
     TrackingProgress,
@@ -124,7 +126,7 @@ def _tracking_callback(reporter: ProgressReporter, n_frames: int, started: float
         elapsed = time.perf_counter() - started
         eta = elapsed / progress.frame * (total - progress.frame) if progress.frame else None
         stage = Progress(
-            stage="tracking",
+            stage=Stage.TRACKING,
             iteration=progress.frame,
             max_iter=total,
             gap=math.nan,
@@ -183,8 +185,9 @@ def _solve(
 ) -> tuple[Result, list[warnings.WarningMessage], dict[str, Any] | None]:
     from moju_core import reconstruct  # the solver loads scikit-learn; only workers need it
 
-    # Limit BLAS/OpenMP threads per process: N worker processes x T threads should not
-    # exceed the cores, or they slow each other down (MOJU_WORKER_THREADS).
+    # BLAS/OpenMP threads per process (MOJU_WORKER_THREADS) for the tracker here, and for the
+    # solver through threads= below: N worker processes x T threads should not exceed the
+    # cores, or they slow each other down.
     with (
         threadpool_limits(limits=settings.worker_threads),
         warnings.catch_warnings(record=True) as caught,
@@ -201,13 +204,21 @@ def _solve(
         result = reconstruct(
             measurements.W,
             record.parameters,
-            rotations=measurements.rotations,
+            rotations=_known_rotations(record, measurements.rotations),
             callback=reporter,
+            threads=settings.worker_threads,
             **masked,
         )
     for warning in caught:
         logger.warning("job %s: %s", record.id, warning.message)
     return result, caught, tracking
+
+
+def _known_rotations(record: JobRecord, uploaded: np.ndarray | None) -> np.ndarray | None:
+    """The uploaded R when the job's rotation method uses it (the library's rule), else None:
+    with an estimating method it is only the truth the download's scores compare with."""
+    method = rotation_method(record.parameters.rotations, uploaded is not None)
+    return uploaded if method == "known" else None
 
 
 def _until_redis_answers(action: Callable[[], bool], patience: float, job_id: UUID) -> bool:
@@ -364,7 +375,7 @@ def _run_attempt(
     return {
         "status": JobStatus.FINISHED.value,
         "n_iter": int(result.n_iter),
-        "stop_reason": result.stop_reason,
+        "stop_reason": str(result.stop_reason),
     }
 
 

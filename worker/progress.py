@@ -30,7 +30,7 @@ def progress_fields(progress: Progress) -> dict[str, Any]:
         return value if value is not None and math.isfinite(value) else None
 
     return {
-        "stage": progress.stage,
+        "stage": str(progress.stage),  # the Stage's value
         "iteration": progress.iteration,
         "max_iter": progress.max_iter,
         "gap": finite(progress.gap),

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 from numpy.testing import assert_allclose
-from threadpoolctl import threadpool_info
+from threadpoolctl import threadpool_info, threadpool_limits
 
 import moju_cli.solver_commands as solver_commands
 import moju_core.solver
@@ -75,9 +75,12 @@ def inputs(sequence, tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="module")
 def reconstructed(inputs, tmp_path_factory) -> tuple[Path, Result]:
-    """One default ``moju reconstruct`` of the full input, shared by the read-only tests."""
+    """One ``moju reconstruct`` of the full input with estimated rotations (the file's R is
+    then only scored against), shared by the read-only tests."""
     output = tmp_path_factory.mktemp("reconstructed") / "result.npz"
-    outcome = run(["reconstruct", str(inputs["full"]), "-o", str(output), "-q"])
+    outcome = run(
+        ["reconstruct", str(inputs["full"]), "-o", str(output), "-q", "--rotations", "auto"]
+    )
     assert outcome.exit_code == 0, outcome.output
     return output, outcome
 
@@ -149,7 +152,7 @@ def test_reconstruct_round_trip(reconstructed, sequence):
     assert stored.shapes.shape == (N_FRAMES, N_POINTS, 3)
     assert stored.rotations.shape == (N_FRAMES, 2, 3)
     assert np.isfinite(stored.shapes).all()
-    assert stored.params["rotations"] == "auto"  # the schema default, not the file's R
+    assert stored.params["rotations"] in ("intersection", "windowed")  # what "auto" chose
     assert stored.metadata["input"] == "full.npz"
     assert f"{N_FRAMES} frames x {N_POINTS} points: {stored.n_iter} iterations" in outcome.output
     assert str(output) in outcome.output
@@ -177,17 +180,24 @@ def test_solver_options_reach_the_solver(inputs, tmp_path):
 
 @pytest.mark.parametrize(("args", "expected"), [([], 1), (["--threads", "2"], 2)])
 def test_threads_option_limits_blas_threads(inputs, tmp_path, monkeypatch, args, expected):
-    solve, seen = moju_core.solver.reconstruct, []
+    """The count is read from inside the solve (the progress callback), not around it."""
+    solve, seen = moju_core.solver.reconstruct, set()
 
-    def recording(*args, **kwargs):
-        seen.extend(pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas")
-        return solve(*args, **kwargs)
+    def recording(*args, callback, **kwargs):
+        def inside(progress):
+            if progress.stage == "iterating":
+                seen.update(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas")
+            return callback(progress)
+
+        return solve(*args, callback=inside, **kwargs)
 
     monkeypatch.setattr(moju_core.solver, "reconstruct", recording)
     output = tmp_path / "r.npz"
-    outcome = run(["reconstruct", str(inputs["tracks"]), "-o", str(output), "-q", *args])
+    # Whatever the process's limit was: the option decides.
+    with threadpool_limits(limits=3 - expected):
+        outcome = run(["reconstruct", str(inputs["tracks"]), "-o", str(output), "-q", *args])
     assert outcome.exit_code == 0, outcome.output
-    assert seen and set(seen) == {expected}
+    assert seen == {expected}
     assert output.exists()
 
 
@@ -244,6 +254,16 @@ def test_reconstruct_with_known_rotations(inputs, sequence, tmp_path):
     shown = printed_scores(outcome.stdout)
     assert "rotation_error_deg" not in shown  # zero by construction, so not printed
     assert shown["e3d_procrustes"] < 0.1
+
+
+def test_default_rotations_are_the_files_R_when_it_has_one(inputs, sequence, tmp_path):
+    output = tmp_path / "result.npz"
+    outcome = run(["reconstruct", str(inputs["full"]), "-o", str(output), "-q", "--max-iter", "5"])
+    assert outcome.exit_code == 0, outcome.output
+    stored = read_result(output)
+    assert stored.params["rotations"] == "known"
+    assert_allclose(stored.rotations, sequence.rotations, atol=1e-12)
+    assert "rotation_error_deg" not in printed_scores(outcome.stdout)
 
 
 def test_known_rotations_without_R_is_a_clean_error(inputs, tmp_path, solver_must_not_run):
@@ -320,7 +340,7 @@ def test_solver_input_error_is_a_clean_error(inputs, tmp_path):
 
 
 def test_ctrl_c_while_solving_exits_130_without_output(inputs, tmp_path, monkeypatch):
-    def interrupted(W, params, *, rotations=None, callback=None):
+    def interrupted(W, params, *, rotations=None, callback=None, threads=None):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(moju_core.solver, "reconstruct", interrupted)
@@ -454,7 +474,7 @@ def test_reconstruct_hands_the_visibility_to_the_solver(occluded_input, sequence
                                                          monkeypatch):  # fmt: skip
     calls = []
 
-    def solver(W, params, *, rotations=None, callback=None, visibility=None):
+    def solver(W, params, *, rotations=None, callback=None, visibility=None, threads=None):
         calls.append((W, visibility))
         return fake_solution(sequence, visibility)
 
@@ -477,7 +497,7 @@ def test_complete_input_reaches_the_solver_without_a_mask(inputs, sequence, tmp_
                                                           monkeypatch):  # fmt: skip
     calls = []
 
-    def solver(W, params, *, rotations=None, callback=None, **masked):
+    def solver(W, params, *, rotations=None, callback=None, threads=None, **masked):
         calls.append(masked)
         return fake_solution(sequence, None)
 
@@ -544,7 +564,7 @@ def test_demo_writes_input_result_and_frames(tmp_path):
         assert getattr(measurements, dataset) is not None
     stored = read_result(out / "result.npz")
     assert stored.shapes.shape == (12, 300, 3)
-    assert stored.params["rotations"] == "auto"
+    assert stored.params["rotations"] in ("intersection", "windowed")  # what "auto" chose
     assert len(list((out / "ply").glob("*.ply"))) == 12
     expected = evaluate(
         stored.shapes, measurements.ground_truth, stored.rotations, measurements.rotations

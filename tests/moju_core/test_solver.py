@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from moju_core import Cancelled, MeasurementError, SolverParams, reconstruct
 from moju_core.datasets import make_sequence
@@ -192,3 +193,58 @@ def test_a_transposed_looking_input_gives_a_result_or_a_clear_message():
         assert "point" in str(error) or "frame" in str(error)
     else:
         assert result.shapes.shape == (2500, 10, 3) and np.isfinite(result.shapes).all()
+
+
+def _blas_threads() -> set[int]:
+    return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+
+
+def _blas_threads_while_iterating(face, **kwargs) -> set[int]:
+    """The BLAS thread counts seen from inside the solve, at every iteration."""
+    seen: set[int] = set()
+
+    def callback(progress):
+        if progress.stage == "iterating":
+            seen.update(_blas_threads())
+
+    reconstruct(
+        face.W, SolverParams(max_iter=3), rotations=face.rotations, callback=callback, **kwargs
+    )
+    assert seen, "the callback never saw an iteration"
+    return seen
+
+
+def test_default_threads_keep_the_callers_limit(face):
+    with threadpool_limits(limits=2):
+        if _blas_threads() != {2}:
+            pytest.skip("this BLAS cannot run 2 threads here")
+        assert _blas_threads_while_iterating(face) == {2}
+
+
+def test_threads_argument_sets_the_limit_for_the_call_only(face):
+    with threadpool_limits(limits=2):
+        if _blas_threads() != {2}:
+            pytest.skip("this BLAS cannot run 2 threads here")
+        assert _blas_threads_while_iterating(face, threads=1) == {1}
+        assert _blas_threads() == {2}  # the caller's limit is back after the call
+    with threadpool_limits(limits=1):
+        assert _blas_threads_while_iterating(face, threads=2) == {2}
+
+
+def test_unset_rotation_method_uses_given_rotations_else_estimates(face):
+    assert SolverParams().rotations is None
+    given = reconstruct(face.W, SolverParams(max_iter=3), rotations=face.rotations)
+    assert given.params.rotations == "known"
+    np.testing.assert_allclose(given.rotations, face.rotations, atol=1e-12)
+    estimated = reconstruct(face.W, SolverParams(max_iter=3))
+    # Result.params names the estimator "auto" chose, and running that again repeats it.
+    assert estimated.params.rotations == estimated.extras["rotation_source"]
+    assert estimated.params.rotations in ("intersection", "windowed")
+    again = reconstruct(face.W, SolverParams(max_iter=3, rotations=estimated.params.rotations))
+    assert_array_equal(again.rotations, estimated.rotations)
+
+
+@pytest.mark.parametrize("method", ["auto", "intersection", "windowed", "rigid"])
+def test_an_estimating_method_with_given_rotations_is_refused(face, method):
+    with pytest.raises(MeasurementError, match=f"params.rotations is '{method}', which estimates"):
+        reconstruct(face.W, SolverParams(rotations=method), rotations=face.rotations)

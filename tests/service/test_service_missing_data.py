@@ -166,7 +166,7 @@ def test_json_visibility_that_disagrees_is_refused(client: TestClient, settings)
 def stand_in_solver(truth: np.ndarray):
     """A ``reconstruct`` that returns the truth, off by FILL_ERROR at the unobserved entries."""
 
-    def solve(W, params, *, rotations=None, callback=None, visibility=None):
+    def solve(W, params, *, rotations=None, callback=None, visibility=None, threads=None):
         assert visibility is not None and visibility.dtype == bool
         shapes = truth.copy()
         shapes[~visibility] += FILL_ERROR
@@ -241,7 +241,7 @@ def test_complete_uploads_keep_their_metrics_and_frames(
 
     calls = []
 
-    def solve(W, params, *, rotations=None, callback=None, **masked):
+    def solve(W, params, *, rotations=None, callback=None, threads=None, **masked):
         calls.append(masked)
         return stand_in_solver(small_sequence.shapes)(
             W, params, rotations=rotations, visibility=np.ones((N_FRAMES, N_POINTS), bool)

@@ -40,7 +40,9 @@ def test_npz_upload_is_accepted_stored_and_queued(
     assert UUID(job["id"]).version == 4
     assert job["status"] == "queued"
     assert job["parameters"]["max_iter"] == 40 and job["parameters"]["seed"] == 3
-    assert job["parameters"] == SolverParams(max_iter=40, seed=3).model_dump(mode="json")
+    # The rotation method is recorded resolved: the file has R, so unset means "known".
+    expected = SolverParams(max_iter=40, seed=3, rotations="known")
+    assert job["parameters"] == expected.model_dump(mode="json")
     assert job["input"] == {
         "frames": 10,
         "points": 300,
@@ -126,6 +128,23 @@ def test_params_must_be_a_json_object(client: TestClient, input_file: Path) -> N
     response = upload(client, input_file, "[1, 2]")
     assert response.status_code == 422
     assert "params must be a JSON object" in response.json()["detail"]
+
+
+@pytest.mark.parametrize(
+    ("has_rotations", "requested", "recorded"),
+    [(True, None, "known"), (False, None, "auto"), (True, "auto", "auto")],
+)
+def test_job_record_shows_the_resolved_rotation_method(
+    client: TestClient, tmp_path: Path, small_sequence, has_rotations, requested, recorded
+) -> None:
+    rotations = small_sequence.rotations if has_rotations else None
+    path = write_measurements(
+        tmp_path / "in.npz", Measurements(W=small_sequence.W, rotations=rotations)
+    )
+    params = {} if requested is None else {"rotations": requested}
+    response = upload(client, path, params)
+    assert response.status_code == 202, response.text
+    assert response.json()["parameters"]["rotations"] == recorded
 
 
 def test_known_rotations_need_rotations_in_the_input(

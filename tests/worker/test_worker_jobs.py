@@ -7,9 +7,11 @@ import time
 import warnings
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from moju_core import reconstruct
+from moju_core.datasets import make_sequence
 from moju_core.params import SolverParams
 from moju_core.validation import tracks_to_W
 from service.states import JobStatus
@@ -114,7 +116,7 @@ def test_missing_points_reach_the_solver_and_the_stored_result(
     visibility[3:6, :50] = False
     calls = []
 
-    def solver(W, params, *, rotations=None, callback=None, visibility=None):
+    def solver(W, params, *, rotations=None, callback=None, visibility=None, threads=None):
         calls.append((W, visibility))
         return Result(
             shapes=np.zeros((10, 300, 3)),
@@ -136,3 +138,72 @@ def test_missing_points_reach_the_solver_and_the_stored_result(
     np.testing.assert_array_equal(given, visibility)
     assert np.isnan(W[6:12, :50]).all() and np.isfinite(W[:6]).all()
     np.testing.assert_array_equal(storage.read_result(job_id).visibility, visibility)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_worker_threads_setting_applies_inside_the_solve(
+    store, storage, settings, add_job, face_W, monkeypatch, threads
+):
+    import moju_core.solver
+
+    solve, seen = moju_core.solver.reconstruct, set()
+
+    def recording(*args, callback, **kwargs):
+        def inside(progress):
+            if progress.stage == "iterating":
+                seen.update(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas")
+            return callback(progress)
+
+        return solve(*args, callback=inside, **kwargs)
+
+    monkeypatch.setattr(moju_core.solver, "reconstruct", recording)
+    job_id = add_job(face_W, SolverParams(max_iter=3))
+    configured = settings.model_copy(update={"worker_threads": threads})
+    # Whatever the process's limit was: MOJU_WORKER_THREADS decides.
+    with threadpool_limits(limits=3 - threads):
+        assert execute(job_id, store, storage, configured)["status"] == "finished"
+    assert seen == {threads}
+
+
+def test_uploaded_rotations_follow_the_librarys_rule(store, storage, settings, add_job, face_W):
+    """Unset: the uploaded R is used, as by reconstruct() and ``moju reconstruct``; with an
+    estimating method it is not, and the job's rotations are the library's estimate."""
+    truth = make_sequence("face1", n_points=300).rotations
+    default = add_job(face_W, SolverParams(max_iter=3), rotations=truth)
+    auto = add_job(face_W, SolverParams(max_iter=3, rotations="auto"), rotations=truth)
+    for job_id in (default, auto):
+        assert execute(job_id, store, storage, settings)["status"] == "finished"
+    np.testing.assert_allclose(storage.read_result(default).rotations, truth, atol=1e-12)
+    record = store.get(default, reconcile_with_rq=False)
+    assert record.result.resolved_parameters.rotations == "known"
+    with threadpool_limits(limits=1):
+        expected = reconstruct(face_W, SolverParams(max_iter=3, rotations="auto"))
+    np.testing.assert_allclose(storage.read_result(auto).rotations, expected.rotations, atol=1e-9)
+    record = store.get(auto, reconcile_with_rq=False)
+    assert record.result.resolved_parameters.rotations == expected.params.rotations
+
+
+@pytest.mark.parametrize("requested", [None, "auto"])
+def test_same_file_gives_the_same_rotations_from_the_cli_and_a_job(
+    store, storage, settings, add_job, face_W, tmp_path, requested
+):
+    from click.testing import CliRunner
+
+    from moju_cli.main import cli
+    from moju_core.io import Measurements, read_result, write_measurements
+
+    truth = make_sequence("face1", n_points=300).rotations
+    source = write_measurements(tmp_path / "in.npz", Measurements(W=face_W, rotations=truth))
+    chosen = [] if requested is None else ["--rotations", requested]
+    output = tmp_path / "cli.npz"
+    args = ["reconstruct", str(source), "-o", str(output), "-q", "--max-iter", "3", *chosen]
+    outcome = CliRunner().invoke(cli, args)
+    assert outcome.exit_code == 0, outcome.output
+    params = SolverParams(max_iter=3, **({} if requested is None else {"rotations": requested}))
+    job_id = add_job(face_W, params, rotations=truth)
+    assert execute(job_id, store, storage, settings)["status"] == "finished"
+    from_cli, from_job = read_result(output), storage.read_result(job_id)
+    np.testing.assert_allclose(from_job.rotations, from_cli.rotations, rtol=0, atol=1e-12)
+    resolved = store.get(job_id, reconcile_with_rq=False).result.resolved_parameters.rotations
+    assert resolved == from_cli.params["rotations"]
+    assert (resolved == "known") is (requested is None)
