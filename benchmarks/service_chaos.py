@@ -398,10 +398,49 @@ def start_serve(work: Path, args: argparse.Namespace, port: int) -> subprocess.P
     return subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
 
 
+def write_markdown(figures: dict, path: Path) -> None:
+    """A short summary of the figures (``service_chaos.md`` next to the json)."""
+    settings, jobs = figures["settings"], figures["jobs"]
+    lines = [
+        "# Chaos soak of `moju serve`",
+        "",
+        f"{settings['minutes']} min of load, {settings['clients']} clients, "
+        f"{settings['workers']} workers, jobs of {settings['points']} points x "
+        f"{settings['frames']} frames (max_iter {settings['max_iter']}), heartbeat "
+        f"{settings['heartbeat_interval_s']} s / TTL {settings['heartbeat_ttl_s']} s, seed "
+        f"{settings['seed']}; {os.cpu_count()} CPUs, load average "
+        f"{figures['machine']['load_average_before'][0]} before.",
+        "",
+        "| SIGKILL of | at (s) | /readyz 200 again after (s) |",
+        "|---|---|---|",
+    ]
+    for kill in figures["kills"]:
+        lines.append(f"| {kill['kind']} | {kill.get('at_s')} | {kill.get('ready_again_after_s')} |")
+    lines += [
+        "",
+        f"Submissions {jobs['submissions']}: {jobs['accepted_202']} accepted with a 202, "
+        f"{jobs['answer_lost_then_found_by_name']} whose answer was lost and whose job was "
+        f"found by name, {jobs['answer_lost_no_job_made']} whose answer was lost and that made "
+        f"no job. Jobs: {jobs['statuses']}, {jobs['jobs_retried']} run again after a lost "
+        f"worker; {jobs['finished_results_checked']} results checked (shape, finite), "
+        f"{jobs['compared_with_direct_solve']} equal to a direct solve. Orphaned directories: "
+        f"{jobs['orphaned_directories']}; processes left after SIGINT: "
+        f"{figures['processes_left_after_sigint']} of {figures['processes_seen']} seen. "
+        f"Requests: {figures['requests']['by_status']}, transport errors "
+        f"{figures['requests']['transport_errors']}. Drain after the load: "
+        f"{figures['drain_seconds']} s.",
+        "",
+        f"**{'PASS' if figures['passed'] else 'FAIL'}**"
+        + ("" if figures["passed"] else ": " + "; ".join(figures["problems"][:10])),
+        "",
+    ]
+    path.write_text("\n".join(lines))
+
+
 def chaos_main(args: argparse.Namespace) -> int:
     global book_started
     work = Path(tempfile.mkdtemp(prefix="moju-chaos-"))
-    W = make_sequence("face1", n_points=args.points).W[: 2 * args.frames]
+    W = make_sequence("face1", n_frames=args.frames, n_points=args.points).W
     buffer = io.BytesIO()
     np.savez(buffer, W=W)
     content = buffer.getvalue()
@@ -501,6 +540,7 @@ def chaos_main(args: argparse.Namespace) -> int:
     }
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(figures, indent=2) + "\n")
+    write_markdown(figures, args.output.with_suffix(".md"))
     print(json.dumps(figures, indent=2))
     print(f"{'PASS' if not problems else 'FAIL'}; figures in {args.output}")
     return 0 if not problems else 1
