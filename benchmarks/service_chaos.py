@@ -281,13 +281,18 @@ def drain(http: httpx.Client, book: Book, timeout: float) -> tuple[list[dict], f
         time.sleep(2.0)
 
 
+def _upload_name(item: dict) -> str:
+    """The file name a job was uploaded with (``input.filename``), or ''."""
+    return (item.get("input") or {}).get("filename") or ""
+
+
 def check(
     http: httpx.Client, book: Book, items: list[dict], W: np.ndarray, data: Path, compare: int
 ) -> dict:
     problems: list[str] = []
     by_name: dict[str, list[dict]] = {}
     for item in items:
-        by_name.setdefault(item.get("filename") or "", []).append(item)
+        by_name.setdefault(_upload_name(item), []).append(item)
     listed = {item["id"] for item in items}
     accepted = resolved_unknown = unresolved = duplicates = 0
     for sub in book.submissions:
@@ -334,7 +339,7 @@ def check(
                 f"{bool(np.isfinite(shapes).all())}"
             )
             continue
-        params = params_of.get(item.get("filename"))
+        params = params_of.get(_upload_name(item))
         if params is not None and compared < compare:
             combo = json.dumps(params, sort_keys=True)
             if combo not in references:
