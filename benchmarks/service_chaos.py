@@ -6,8 +6,8 @@ One ``moju serve`` (embedded Redis, ``--workers`` workers, the API) runs on loop
 throwaway data directory. Client threads submit tiny jobs (npz uploads of a small face, a few
 iterations) and follow them; meanwhile ``--kills`` SIGKILLs, spread over the run, each hit a
 child chosen at random (seeded) among Redis, the workers and the API. The clients tolerate the
-outages: a 503, a refused or dropped connection or a timeout is retried with exponential
-backoff. A submission whose answer was lost (the connection dropped after the upload was
+outages: a 503, a 429 or a refused connection is retried with exponential backoff (reads
+also after a dropped connection or a timeout). A submission whose answer was lost (the connection dropped after the upload was
 sent) has an unknown outcome; the API has no idempotency key, so every submission carries a
 unique file name and such submissions are resolved at the end by listing the jobs and
 matching the name. After the load, the run waits for every job to end and checks:

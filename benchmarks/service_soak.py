@@ -1,6 +1,7 @@
 """Soak check of the MoJu service on loopback (a script, not a test).
 
     python benchmarks/service_soak.py [--minutes 3] [--workers 2] [--clients 3] [--kill-every 60]
+    python benchmarks/service_soak.py --chaos [--kills 9] [--seed 0]   (see service_chaos.py)
 
 For a few minutes, client threads send a mix of requests to a service with API keys (two
 keys, one configured as a digest) and a per-key queue limit: good jobs (npz, HDF5 and CSV
