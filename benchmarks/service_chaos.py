@@ -7,13 +7,14 @@ throwaway data directory. Client threads submit tiny jobs (npz uploads of a smal
 iterations) and follow them; meanwhile ``--kills`` SIGKILLs, spread over the run, each hit a
 child chosen at random (seeded) among Redis, the workers and the API. The clients tolerate the
 outages: a 503, a 429 or a refused connection is retried with exponential backoff (reads
-also after a dropped connection or a timeout). A submission whose answer was lost (the connection dropped after the upload was
-sent) has an unknown outcome; the API has no idempotency key, so every submission carries a
-unique file name and such submissions are resolved at the end by listing the jobs and
-matching the name. After the load, the run waits for every job to end and checks:
+also after a dropped connection or a timeout). A submission whose answer was lost (the
+connection dropped after the upload was sent) has an unknown outcome; the API has no
+idempotency key, so every submission carries a unique file name and such submissions are
+resolved at the end by listing the jobs and matching the name (found, or counted apart as
+having made no job). After the load, the run waits for every job to end and checks:
 
-* no job lost: every job the API accepted (a 202, or found by its name in the listing) still
-  has a record, and no submission stays unresolved;
+* no job lost: every job the API accepted with a 202 still has a record, and no job exists
+  that its client was not told about (other than one found for a lost answer);
 * every job terminal (finished, or failed by the lease rules after its worker was killed);
 * results correct: every finished result has shapes ``(F, P, 3)``, all finite, and for a few
   jobs it equals a direct ``reconstruct`` of the same input and parameters;
