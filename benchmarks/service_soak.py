@@ -1,6 +1,7 @@
 """Soak check of the MoJu service on loopback (a script, not a test).
 
     python benchmarks/service_soak.py [--minutes 3] [--workers 2] [--clients 3] [--kill-every 60]
+    python benchmarks/service_soak.py --chaos [--kills 9] [--seed 0]   (see service_chaos.py)
 
 For a few minutes, client threads send a mix of requests to a service with API keys (two
 keys, one configured as a digest) and a per-key queue limit: good jobs (npz, HDF5 and CSV
@@ -583,8 +584,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--worker-niceness", type=int, default=10)
     parser.add_argument("--drain-timeout", type=float, default=300.0)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--output", type=Path, default=RESULTS / "service_soak.json")
+    parser.add_argument("--output", type=Path, default=None)
+    chaos = parser.add_argument_group("chaos (a real moju serve; see service_chaos.py)")
+    chaos.add_argument("--chaos", action="store_true", help="SIGKILL Redis, workers and the API")
+    chaos.add_argument("--kills", type=int, default=9, help="SIGKILLs spread over the run")
+    chaos.add_argument("--frames", type=int, default=20, help="frames of the tiny chaos jobs")
+    chaos.add_argument("--compare", type=int, default=5, help="results checked by a direct solve")
     args = parser.parse_args(argv)
+    if args.chaos:
+        from service_chaos import RESULTS as CHAOS_RESULTS
+        from service_chaos import chaos_main
+
+        if not (0 < args.minutes <= 15 and 1 <= args.kills <= 60):
+            parser.error("keep it bounded: up to 15 minutes and 60 kills")
+        args.output = args.output or CHAOS_RESULTS / "service_chaos.json"
+        return chaos_main(args)
+    args.output = args.output or RESULTS / "service_soak.json"
     if not (0 < args.minutes <= 15 and 1 <= args.clients <= 8 and 1 <= args.workers <= 8):
         parser.error("keep it bounded: up to 15 minutes, 8 clients, 8 workers")
 
