@@ -85,9 +85,7 @@ def run_one(name: str, width: int, height: int, n_frames: int, directory: Path) 
     return row
 
 
-def perfect_tracks(
-    video: RenderedVideo, tracks: Tracks
-) -> tuple[Tracks, Tracks, np.ndarray]:
+def perfect_tracks(video: RenderedVideo, tracks: Tracks) -> tuple[Tracks, Tracks, np.ndarray]:
     """The solvable on-surface ``tracks`` and perfect tracks of the same points.
 
     Returns the tracks as tracked, the same points' true 2D paths as W (2F, P) pixels with the
@@ -222,8 +220,15 @@ def reconstruction_table(rows: list[dict[str, Any]]) -> list[str]:
         "true 2D paths with the tracker's visibility; complete: the true 2D paths, all observed.",
         "",
         *table(
-            ["video", "solved tracks", "e3D tracked", "e3D perfect", "tracked / perfect",
-             "e3D complete", "solve s (tracked, perfect, complete)"],
+            [
+                "video",
+                "solved tracks",
+                "e3D tracked",
+                "e3D perfect",
+                "tracked / perfect",
+                "e3D complete",
+                "solve s (tracked, perfect, complete)",
+            ],
             [
                 [
                     f"{r['sequence']} {r['width']}x{r['height']}, {r['frames']} frames",
