@@ -5,8 +5,20 @@ writes it as an mp4, tracks the mp4 with the first frame's true mask and the def
 scores the tracks against the ground truth (``moju_core.render.score_tracks``). Time is wall
 clock and process CPU time of the tracking alone (decoding included, rendering excluded).
 
+The 320 x 320 videos are also reconstructed. The solvable tracks (``solvable_tracks``) on
+the surface are solved with ``moju_core.reconstruct`` (default parameters, the same seed):
+once as tracked, once with perfect tracks of the same points (their true 2D paths, with the
+tracker's visibility). Both e3D are against the true 3D paths in pixels
+(``moju_core.metrics.e3d``, per-frame Procrustes, no scaling); the ratio tracked / perfect is
+the cost of tracking errors. A third solve, of the same points' true paths with every entry
+observed ("complete"), shows what the lost track-frames cost.
+
+A short 1280 x 720 video (the 320 x 240 render upscaled 4x) gives the tracking time per frame
+at that size.
+
     python benchmarks/tracking.py            # paper, face1, cloth at 320 x 240; paper, face1
-                                             # at 320 x 320; 40 frames each
+                                             # at 320 x 320 (reconstructed); 40 frames each;
+                                             # paper at 1280 x 720, 10 frames (time only)
     python benchmarks/tracking.py --quick    # one small video, to prove it runs
 
 Results: ``benchmarks/results/tracking.json`` and ``tracking.md``.
@@ -21,10 +33,14 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 from harness import RESULTS, provenance, table, write_json, write_markdown
 
-from moju_core.render import render_sequence, score_tracks, write_video
-from moju_core.tracking import DEFAULT_STEP, track_video
+from moju_core import reconstruct
+from moju_core.metrics import e3d
+from moju_core.params import SolverParams
+from moju_core.render import RenderedVideo, render_sequence, score_tracks, write_video
+from moju_core.tracking import DEFAULT_STEP, Tracks, solvable_tracks, track_video
 
 FULL = [
     ("paper", 320, 240),
@@ -34,6 +50,11 @@ FULL = [
     ("face1", 320, 320),
 ]
 QUICK = [("paper", 160, 120)]
+#: Sizes whose tracks are also reconstructed (tracked against perfect tracks).
+RECONSTRUCTED = {(320, 320)}
+#: The large-frame timing: a render upscaled to 1280 x 720 (rendering at that size is slow).
+LARGE = ("paper", 320, 240, 1280, 720)
+LARGE_FRAMES = 10
 
 
 def run_one(name: str, width: int, height: int, n_frames: int, directory: Path) -> dict[str, Any]:
@@ -44,7 +65,7 @@ def run_one(name: str, width: int, height: int, n_frames: int, directory: Path) 
     tracks = track_video(path, mask=video.mask)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     scores = score_tracks(video, tracks.W)
-    return {
+    row = {
         "sequence": name,
         "width": width,
         "height": height,
@@ -59,24 +80,97 @@ def run_one(name: str, width: int, height: int, n_frames: int, directory: Path) 
         "wall_s": wall,
         "cpu_s": cpu,
     }
+    if (width, height) in RECONSTRUCTED:
+        row.update(reconstruction_errors(video, tracks))
+    return row
+
+
+def perfect_tracks(video: RenderedVideo, tracks: Tracks) -> tuple[Tracks, Tracks, np.ndarray]:
+    """The solvable on-surface ``tracks`` and perfect tracks of the same points.
+
+    Returns the tracks as tracked, the same points' true 2D paths as W (2F, P) pixels with the
+    tracker's visibility (NaN where it lost them) and the points' ground-truth index (P,).
+    """
+    kept = solvable_tracks(tracks)
+    n_frames = kept.n_frames
+    index = video.lookup(kept.W.reshape(n_frames, 2, -1)[0].T)
+    on = index >= 0
+    kept = Tracks(
+        W=kept.W[:, on], visibility=kept.visibility[:, on], colors=kept.colors[on],
+        frame_size=kept.frame_size,
+    )  # fmt: skip
+    index = index[on]
+    true_W = video.paths_2d[:, index].transpose(0, 2, 1).reshape(2 * n_frames, -1).copy()
+    true_W[np.repeat(~kept.visibility, 2, axis=0)] = np.nan
+    perfect = Tracks(
+        W=true_W, visibility=kept.visibility, colors=kept.colors, frame_size=kept.frame_size
+    )
+    return kept, perfect, index
+
+
+def reconstruction_errors(video: RenderedVideo, tracks: Tracks) -> dict[str, Any]:
+    """e3D of reconstructions from ``tracks`` and from perfect tracks of the same points."""
+    kept, perfect, index = perfect_tracks(video, tracks)
+    truth = video.paths_3d[:, index] * video.scale  # pixels, the units of W and the shapes
+    params = SolverParams()
+    out: dict[str, Any] = {"solved_points": int(index.size), "seed": params.seed}
+    n_frames = video.n_frames
+    complete = Tracks(
+        W=video.paths_2d[:, index].transpose(0, 2, 1).reshape(2 * n_frames, -1),
+        visibility=np.ones_like(kept.visibility), colors=kept.colors, frame_size=kept.frame_size,
+    )  # fmt: skip
+    for label, source in (("tracked", kept), ("perfect", perfect), ("complete", complete)):
+        start = time.perf_counter()
+        result = reconstruct(source.W, params, visibility=source.visibility)
+        out[f"e3d_{label}"] = e3d(result.shapes, truth)
+        out[f"solve_{label}_s"] = time.perf_counter() - start
+    out["e3d_ratio"] = out["e3d_tracked"] / out["e3d_perfect"]
+    return out
+
+
+def time_large(directory: Path) -> dict[str, Any]:
+    """Tracking time per frame of a 1280 x 720 video: a small render upscaled (cubic)."""
+    name, width, height, big_w, big_h = LARGE
+    video = render_sequence(name, width=width, height=height, n_frames=LARGE_FRAMES)
+    frames = [cv2.resize(f, (big_w, big_h), interpolation=cv2.INTER_CUBIC) for f in video.frames]
+    mask = cv2.resize(video.mask.astype(np.uint8), (big_w, big_h), cv2.INTER_NEAREST) > 0
+    path = write_video(directory / f"{name}_{big_w}x{big_h}.mp4", np.stack(frames))
+    wall, cpu = time.perf_counter(), time.process_time()
+    tracks = track_video(path, mask=mask)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    return {
+        "sequence": f"{name} {width}x{height} upscaled", "width": big_w, "height": big_h,
+        "frames": LARGE_FRAMES, "tracks": tracks.n_points, "wall_s": wall, "cpu_s": cpu,
+        "kept_fraction": float(tracks.visibility.mean()),
+    }  # fmt: skip
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="one small video")
     parser.add_argument("--frames", type=int, default=None, help="frames per video [40; 12]")
+    parser.add_argument(
+        "--only", default=None, help="comma-separated WIDTHxHEIGHT sizes to run (e.g. 320x320)"
+    )
     args = parser.parse_args()
     meta = provenance()
     configurations = QUICK if args.quick else FULL
     n_frames = args.frames or (12 if args.quick else 40)
+    if args.only:
+        sizes = {tuple(int(v) for v in size.split("x")) for size in args.only.split(",")}
+        configurations = [c for c in configurations if (c[1], c[2]) in sizes]
     rows = []
+    large = None
     with tempfile.TemporaryDirectory() as directory:
         for name, width, height in configurations:
             row = run_one(name, width, height, n_frames, Path(directory))
             print(row, flush=True)
             rows.append(row)
+        if not args.quick:
+            large = time_large(Path(directory))
+            print(large, flush=True)
     suffix = "_quick" if args.quick else ""
-    write_json(RESULTS / f"tracking{suffix}.json", meta, rows=rows)
+    write_json(RESULTS / f"tracking{suffix}.json", meta, rows=rows, large=large)
     body = table(
         ["video", "tracks", "median px", "p90 px", "kept", "kept of visible", "kept hidden",
          "to last frame", "ms/frame wall", "ms/frame CPU"],
@@ -100,7 +194,56 @@ def main() -> None:
         "",
         f"OpenCV {cv2.__version__}; DIS flow, step {DEFAULT_STEP} px, true first-frame mask.",
     ]
+    body += reconstruction_table([r for r in rows if "e3d_ratio" in r])
+    if large is not None:
+        body += [
+            "",
+            "## Tracking time at 1280 x 720",
+            "",
+            f"{large['sequence']} to {large['width']}x{large['height']}, {large['frames']} "
+            f"frames, {large['tracks']} tracks: {1000 * large['wall_s'] / large['frames']:.0f} "
+            f"ms/frame wall, {1000 * large['cpu_s'] / large['frames']:.0f} ms/frame CPU "
+            f"({large['kept_fraction']:.1%} of the track-frames kept).",
+        ]
     write_markdown(RESULTS / f"tracking{suffix}.md", "Tracking on rendered videos", meta, body)
+
+
+def reconstruction_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Markdown lines comparing reconstructions from tracks and from perfect tracks."""
+    if not rows:
+        return []
+    return [
+        "",
+        "## Reconstruction from the tracks against perfect tracks of the same points",
+        "",
+        "Default solver parameters, the same seed; e3D against the true 3D paths. Perfect: the",
+        "true 2D paths with the tracker's visibility; complete: the true 2D paths, all observed.",
+        "",
+        *table(
+            [
+                "video",
+                "solved tracks",
+                "e3D tracked",
+                "e3D perfect",
+                "tracked / perfect",
+                "e3D complete",
+                "solve s (tracked, perfect, complete)",
+            ],
+            [
+                [
+                    f"{r['sequence']} {r['width']}x{r['height']}, {r['frames']} frames",
+                    r["solved_points"],
+                    f"{r['e3d_tracked']:.4f}",
+                    f"{r['e3d_perfect']:.4f}",
+                    f"{r['e3d_ratio']:.3f}",
+                    f"{r['e3d_complete']:.4f}",
+                    f"{r['solve_tracked_s']:.0f}, {r['solve_perfect_s']:.0f}, "
+                    f"{r['solve_complete_s']:.0f}",
+                ]
+                for r in rows
+            ],
+        ),  # fmt: skip
+    ]
 
 
 if __name__ == "__main__":

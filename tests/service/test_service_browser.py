@@ -415,3 +415,64 @@ def test_the_page_works_with_an_api_key(
     ]
     assert unexpected == []
     assert watched.foreign_requests == []
+
+
+def test_video_upload_through_the_page(
+    watched: Watched, live_api: str, worker, tmp_path: Path
+) -> None:
+    """A tiny rendered video and its mask, submitted through the form: the worker tracks and
+    solves it; every kept track has a shape in every frame, and the viewer shows the first frame
+    with the tracks beside the 3D shape."""
+    import cv2
+
+    from moju_core.render import render_sequence, write_video
+
+    n_frames, (width, height) = 8, (96, 72)
+    rendered = render_sequence("paper", width=width, height=height, n_frames=n_frames)
+    video = write_video(tmp_path / "paper.mp4", rendered.frames)
+    mask = tmp_path / "mask.png"
+    cv2.imwrite(str(mask), rendered.mask.astype(np.uint8) * 255)
+
+    page = watched.page
+    page.goto(live_api + "/")
+    page.wait_for_selector("#method option[value=moju]", state="attached")
+    page.set_input_files("#file", str(video))
+    page.set_input_files("#mask", str(mask))
+    page.fill("#max_iter", "5")
+    page.click("#submit-button")
+    page.wait_for_selector("#submit-status:has-text('submitted job')")
+    job_id = page.locator("#submit-status").text_content().removeprefix("submitted job ")
+    row = f'tr[data-job-id="{job_id}"]'
+    page.wait_for_selector(f'{row}[data-status="finished"]', timeout=60_000)
+
+    job = httpx.get(f"{live_api}/v1/jobs/{job_id}").json()
+    assert job["input"]["format"] == "video" and job["input"]["video"]["has_mask"] is True
+    assert job["parameters"]["max_iter"] == 5
+    links = page.locator(f"{row} a.download").evaluate_all("as => as.map(a => a.href)")
+    assert f"{live_api}/v1/jobs/{job_id}/tracks.npz" in links
+    tracks = httpx.get(f"{live_api}/v1/jobs/{job_id}/tracks.npz")
+    with np.load(io.BytesIO(tracks.content), allow_pickle=False) as data:
+        W, visibility = data["W"], data["visibility"]
+    n_tracks = job["result"]["tracking"]["reconstructed"]
+    assert W.shape == (2 * n_frames, n_tracks) and n_tracks > 0
+    result = httpx.get(f"{live_api}/v1/jobs/{job_id}/result", params={"format": "npz"})
+    with np.load(io.BytesIO(result.content), allow_pickle=False) as data:
+        shapes = data["shapes"]
+        np.testing.assert_array_equal(data["visibility"], visibility)
+    assert shapes.shape == (n_frames, n_tracks, 3) and np.isfinite(shapes).all()
+
+    # The viewer: the 3D shape has every track; beside it, the first frame of the video.
+    page.click(f"{row} button.view")
+    page.wait_for_selector('#viewer-container[data-rendered-frame="0"]')
+    assert sum(page.evaluate(f"document.querySelector('{SCENE}').data.map(t => t.x.length)")) == (
+        n_tracks
+    )
+    page.wait_for_selector("#viewer-frame:not([hidden])")
+    page.wait_for_function("document.querySelector('#viewer-frame-image').naturalWidth > 0")
+    size = page.evaluate(
+        "(() => { const i = document.querySelector('#viewer-frame-image');"
+        " return [i.naturalWidth, i.naturalHeight]; })()"
+    )
+    assert size == [width, height]
+    assert watched.console_errors == []
+    assert watched.foreign_requests == []
