@@ -66,6 +66,8 @@ def _v1_requests() -> list[tuple[str, str]]:
         ("GET", f"/v1/jobs/{job}/metrics"),
         ("GET", f"/v1/jobs/{job}/viewer-data"),
         ("GET", f"/v1/jobs/{job}/viewer-data/frames/0"),
+        ("GET", f"/v1/jobs/{job}/tracks.npz"),
+        ("GET", f"/v1/jobs/{job}/first-frame.png"),
         ("GET", "/v1/jobs/not-a-uuid"),
         ("GET", "/v1/jobs?limit=100000"),  # an invalid query still needs a key first
     ]
