@@ -126,6 +126,7 @@ def run(
     exact_prior = prior is not None and refine_rotations
     # The truncated nuclear norm: with free_mean_shape the top singular value is not shrunk.
     kept_values = 1 if params.free_mean_shape else 0
+    svt_warm = lrr.WarmStart(seed=params.seed)  # the S# step's vectors from one call to the next
     shapes = start  # S = pinv(R) W
     sharp = shapes.reshape(n_frames, 3 * n_points).copy()  # S# = f(S)
     # The multiplier L1 is stored scaled, ``scaled = L1 / rho``: both places it enters (the
@@ -286,7 +287,7 @@ def run(
             None if prior is None or exact_prior else temporal_prior.smoothing_filter(prior, rho)
         )
         _, nuclear = lrr.singular_value_threshold(
-            work, params.beta2 / rho, out=sharp, keep=kept_values, left=smoothing
+            work, params.beta2 / rho, out=sharp, keep=kept_values, left=smoothing, warm=svt_warm
         )
         # 11. Z-update.
         if adaptive:

@@ -6,6 +6,13 @@ from collections.abc import Callable
 
 import numpy as np
 
+from moju_core import leading_svd
+from moju_core.leading_svd import WarmStart
+
+#: Shorter side of x from which a call given a warm start takes the truncated route: below it
+#: the Gram route is cheaper (and the results of smaller problems stay those of the Gram route).
+TRUNCATED_MIN_SIDE = 400
+
 
 def singular_value_threshold(
     x: np.ndarray,
@@ -14,6 +21,7 @@ def singular_value_threshold(
     *,
     keep: int = 0,
     left: Callable[[np.ndarray], np.ndarray] | None = None,
+    warm: WarmStart | None = None,
 ) -> tuple[np.ndarray, float]:
     """Proximal operator of ``tau ||.||_*``: ``U max(Sigma - tau, 0) V^T`` (Algorithm 1, 10-11).
 
@@ -53,6 +61,34 @@ def singular_value_threshold(
     nuclear_norm : float
         ``||y||_*`` (all singular values, the kept ones included).
     """
+    route = None
+    if warm is not None and min(x.shape) >= TRUNCATED_MIN_SIDE:
+        route = leading_svd.leading_triplets(x, tau, keep, warm)
+    if route is None:
+        columns, rows, column_scale, nuclear = _gram_route(x, tau, keep)
+    else:
+        # y = [U_r diag(shrunk / s)] [U_r^T x], as the wide Gram route.
+        vectors, s, rows = route
+        shrunk = np.clip(s - tau, 0.0, None)
+        shrunk[:keep] = s[:keep]
+        columns, column_scale, nuclear = vectors * (shrunk / s), s, float(shrunk.sum())
+    if left is not None and columns.shape[1]:
+        columns = left(columns)
+        # y = (left(U_r) diag(shrunk)) V_r^T with V_r orthonormal: the nuclear norm of y is
+        # that of the (m, r) factor.
+        nuclear = float(np.linalg.svd(columns * column_scale, compute_uv=False).sum())
+    return np.matmul(columns, rows, out=out), nuclear
+
+
+def _gram_route(
+    x: np.ndarray, tau: float, keep: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The threshold's factors through the Gram matrix of the shorter side of x (m, n).
+
+    Returns ``(columns, rows, column_scale, nuclear)``: the result is ``columns @ rows``,
+    ``columns * column_scale`` is ``U_r diag(shrunk)`` (m, r) and ``nuclear`` the sum of the
+    shrunk values.
+    """
     m, n = x.shape
     wide = m <= n
     values, vectors = np.linalg.eigh(x @ x.T if wide else x.T @ x)
@@ -68,16 +104,9 @@ def singular_value_threshold(
     nuclear = float(shrunk.sum())
     if wide:
         # y = [U_r diag(shrunk / s)] [U_r^T x]; the first factor times diag(s) is U_r diag(shrunk).
-        columns, rows, column_scale = kept * factors, kept.T @ x, s[surviving]
-    else:
-        # y = [x V_r diag(shrunk / s)] V_r^T; the first factor is U_r diag(shrunk).
-        columns, rows, column_scale = (x @ kept) * factors, kept.T, np.ones(len(factors))
-    if left is not None and columns.shape[1]:
-        columns = left(columns)
-        # y = (left(U_r) diag(shrunk)) V_r^T with V_r orthonormal: the nuclear norm of y is
-        # that of the (m, r) factor.
-        nuclear = float(np.linalg.svd(columns * column_scale, compute_uv=False).sum())
-    return np.matmul(columns, rows, out=out), nuclear
+        return kept * factors, kept.T @ x, s[surviving], nuclear
+    # y = [x V_r diag(shrunk / s)] V_r^T; the first factor is U_r diag(shrunk).
+    return (x @ kept) * factors, kept.T, np.ones(len(factors)), nuclear
 
 
 def top_singular_value(x: np.ndarray) -> float:

@@ -1,0 +1,142 @@
+"""The singular triplets of a matrix above a threshold, by warm-started subspace iteration.
+
+The S# step of the loop (:func:`moju_core.lrr.singular_value_threshold`) needs only the r
+singular values above its threshold and their vectors, and r is small (a handful on the
+benchmark sequences) while S# is F x 3P. Through the Gram matrix of the shorter side that
+costs ``O(m n min(m, n))`` per iteration plus a ``min(m, n)^3`` eigenproblem; here a block
+of b = r + a few row-space vectors is iterated instead, ``O(m n b)`` per sweep, started from
+the vectors of the previous call (:class:`WarmStart`), which the loop changes little from one
+iteration to the next.
+
+One sweep, with Q (m, b) orthonormal:
+
+* ``Z = X^T Q`` and its thin SVD ``Z = V diag(theta) W^T`` (n x b, cheap): the Rayleigh-Ritz
+  values theta and vectors ``U = Q W`` of the block, with ``X^T U = V diag(theta)`` exactly;
+* ``G = X V`` and the residual of every triplet, ``e_i = ||X v_i - theta_i u_i||``;
+* the next block is ``qr(G diag(1 / theta))`` (columns near ``u_i``, so the QR is well
+  conditioned whatever the spread of the values).
+
+The triplets are accepted when every value above the threshold (or kept) has a residual below
+``RELATIVE_TOLERANCE * theta_1`` and the block also holds one value below the threshold that is
+itself settled (``theta + e`` at most the threshold); while every value of the block is above
+the threshold the block grows. With the accepted triplets ``X`` differs from
+``U diag(theta) V^T + (I - U U^T) X`` by at most the residuals, and the threshold is
+non-expansive, so the result differs from the exact one by about ``sqrt(sum e_i^2)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Vectors beyond the surviving ones in the block (the values just below the threshold).
+GUARD = 4
+#: Residual of an accepted triplet, relative to the largest singular value.
+RELATIVE_TOLERANCE = 1e-11
+#: Sweeps of one call before it gives up (the caller then takes the exact route).
+MAX_SWEEPS = 60
+#: A block wider than this fraction of the shorter side is given up too: the exact route is
+#: then as cheap.
+MAX_BLOCK_FRACTION = 0.25
+
+
+@dataclass
+class WarmStart:
+    """What one call of :func:`leading_triplets` leaves for the next one.
+
+    Created empty by the caller and passed to every call on matrices of the same number of
+    rows; each call reads and replaces ``vectors``. Row-space vectors are kept, so a
+    permutation of the columns (the loop regrouping points) does not spoil them.
+
+    vectors : ndarray of shape (m, b) or None
+        The Ritz vectors of the last accepted block, by decreasing value.
+    surviving : int
+        Number of values the last call returned.
+    seed : int
+        Seed of the random columns that start or widen a block.
+    sweeps : int
+        Sweeps run over all calls (each two products with X).
+    calls, fallbacks : int
+        Calls, and calls that gave up (:data:`MAX_SWEEPS`, :data:`MAX_BLOCK_FRACTION`).
+    """
+
+    vectors: np.ndarray | None = None
+    surviving: int = 0
+    seed: int = 0
+    sweeps: int = 0
+    calls: int = 0
+    fallbacks: int = 0
+    rng: np.random.Generator = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.rng = np.random.default_rng(self.seed)
+
+    def start(self, n_rows: int, width: int) -> np.ndarray:
+        """An orthonormal (n_rows, width) block: the kept vectors, then random columns."""
+        kept = self.vectors if self.vectors is not None and len(self.vectors) == n_rows else None
+        kept = np.empty((n_rows, 0)) if kept is None else kept[:, :width]
+        fresh = self.rng.standard_normal((n_rows, width - kept.shape[1]))
+        return np.linalg.qr(np.hstack([kept, fresh]))[0]
+
+
+def leading_triplets(
+    x: np.ndarray, tau: float, keep: int, warm: WarmStart
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The singular triplets of x above tau, and the ``keep`` leading ones in any case.
+
+    Parameters
+    ----------
+    x : ndarray of shape (m, n)
+    tau : float
+        Threshold, >= 0.
+    keep : int
+        Leading values returned even when at most tau.
+    warm : WarmStart
+        The previous call's vectors; updated.
+
+    Returns
+    -------
+    (u, s, rows) or None
+        ``u`` (m, r) orthonormal left vectors, ``s`` (r,) the values in decreasing order,
+        ``rows`` (r, n) ``= u^T x = diag(s) V^T``. None when the block would grow wider than
+        ``MAX_BLOCK_FRACTION * min(m, n)`` or did not settle in ``MAX_SWEEPS`` sweeps.
+    """
+    m, n = x.shape
+    limit = max(1, int(MAX_BLOCK_FRACTION * min(m, n)))
+    width = min(max(keep, warm.surviving) + 1 + GUARD, limit)
+    q = warm.start(m, width)
+    warm.calls += 1
+    for _ in range(MAX_SWEEPS):
+        warm.sweeps += 1
+        z = x.T @ q
+        v, theta, wt = np.linalg.svd(z, full_matrices=False)
+        u = q @ wt.T
+        g = x @ v
+        residual = np.linalg.norm(g - u * theta, axis=0)
+        count = _surviving(theta, tau, keep)
+        tolerance = RELATIVE_TOLERANCE * theta[0]
+        if count < width:
+            settled = residual[:count].max(initial=0.0) <= tolerance
+            if settled and theta[count] + residual[count] <= tau + tolerance:
+                warm.vectors, warm.surviving = u, count
+                return u[:, :count], theta[:count], (v[:, :count] * theta[:count]).T
+            q = np.linalg.qr(g / np.maximum(theta, tolerance))[0]
+        else:
+            if width >= limit:
+                break
+            # Every value of the block survives: widen it by fresh random columns.
+            grown = min(width + GUARD + width // 2, limit)
+            fresh = warm.rng.standard_normal((m, grown - width))
+            q = np.linalg.qr(np.hstack([g / np.maximum(theta, tolerance), fresh]))[0]
+            width = grown
+    warm.fallbacks += 1
+    warm.vectors, warm.surviving = None, 0
+    return None
+
+
+def _surviving(theta: np.ndarray, tau: float, keep: int) -> int:
+    """How many of the decreasing values theta survive: those above tau, at least ``keep``
+    (positive ones only)."""
+    above = int(np.count_nonzero(theta > tau))
+    return max(above, min(keep, int(np.count_nonzero(theta > 0))))
