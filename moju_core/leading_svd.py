@@ -35,7 +35,10 @@ GUARD = 4
 #: Residual of an accepted triplet, relative to the largest singular value.
 RELATIVE_TOLERANCE = 1e-11
 #: Sweeps of one call before it gives up (the caller then takes the exact route).
-MAX_SWEEPS = 60
+MAX_SWEEPS = 40
+#: Sweeps without settling after which the block widens (the values next to the threshold
+#: converge like ``(s_{b+1} / s_r)^2`` per sweep: slowly when they are clustered).
+SLOW_SWEEPS = 6
 #: A block wider than this fraction of the shorter side is given up too: the exact route is
 #: then as cheap.
 MAX_BLOCK_FRACTION = 0.25
@@ -50,7 +53,7 @@ class WarmStart:
     permutation of the columns (the loop regrouping points) does not spoil them.
 
     vectors : ndarray of shape (m, b) or None
-        The Ritz vectors of the last accepted block, by decreasing value.
+        The Ritz vectors of the last block, by decreasing value.
     surviving : int
         Number of values the last call returned.
     seed : int
@@ -59,6 +62,9 @@ class WarmStart:
         Sweeps run over all calls (each two products with X).
     calls, fallbacks : int
         Calls, and calls that gave up (:data:`MAX_SWEEPS`, :data:`MAX_BLOCK_FRACTION`).
+    too_many_above : float
+        A threshold with more values above it than the widest block holds (-1: none yet);
+        calls at or below it give up at once.
     """
 
     vectors: np.ndarray | None = None
@@ -67,10 +73,18 @@ class WarmStart:
     sweeps: int = 0
     calls: int = 0
     fallbacks: int = 0
+    too_many_above: float = -1.0
     rng: np.random.Generator = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.rng = np.random.default_rng(self.seed)
+
+    def width(self, keep: int) -> int:
+        """Block width of the next call: the last surviving values, one below and a guard,
+        or the last block if it was wider (it had to be, to settle), up to twice that."""
+        needed = max(keep, self.surviving) + 1 + GUARD
+        last = 0 if self.vectors is None else self.vectors.shape[1]
+        return last if needed <= last <= 2 * needed else needed
 
     def start(self, n_rows: int, width: int) -> np.ndarray:
         """An orthonormal (n_rows, width) block: the kept vectors, then random columns."""
@@ -103,11 +117,15 @@ def leading_triplets(
         ``MAX_BLOCK_FRACTION * min(m, n)`` or did not settle in ``MAX_SWEEPS`` sweeps.
     """
     m, n = x.shape
-    limit = max(1, int(MAX_BLOCK_FRACTION * min(m, n)))
-    width = min(max(keep, warm.surviving) + 1 + GUARD, limit)
-    q = warm.start(m, width)
     warm.calls += 1
-    for _ in range(MAX_SWEEPS):
+    if tau <= warm.too_many_above:
+        warm.fallbacks += 1
+        return None
+    limit = max(1, int(MAX_BLOCK_FRACTION * min(m, n)))
+    width = min(warm.width(keep), limit)
+    q = warm.start(m, width)
+    count = 0
+    for sweep in range(1, MAX_SWEEPS + 1):
         warm.sweeps += 1
         z = x.T @ q
         v, theta, wt = np.linalg.svd(z, full_matrices=False)
@@ -116,22 +134,27 @@ def leading_triplets(
         residual = np.linalg.norm(g - u * theta, axis=0)
         count = _surviving(theta, tau, keep)
         tolerance = RELATIVE_TOLERANCE * theta[0]
-        if count < width:
+        full = count == width  # no value below the threshold in the block: it must widen
+        if not full:
             settled = residual[:count].max(initial=0.0) <= tolerance
             if settled and theta[count] + residual[count] <= tau + tolerance:
                 warm.vectors, warm.surviving = u, count
                 return u[:, :count], theta[:count], (v[:, :count] * theta[:count]).T
-            q = np.linalg.qr(g / np.maximum(theta, tolerance))[0]
-        else:
-            if width >= limit:
-                break
-            # Every value of the block survives: widen it by fresh random columns.
-            grown = min(width + GUARD + width // 2, limit)
-            fresh = warm.rng.standard_normal((m, grown - width))
-            q = np.linalg.qr(np.hstack([g / np.maximum(theta, tolerance), fresh]))[0]
-            width = grown
+        # The next block: one power step (columns near u_i, well conditioned), widened by
+        # random columns when it is full or converges slowly (a cluster of values at tau).
+        power = g / np.maximum(theta, tolerance)
+        grow = full or sweep % SLOW_SWEEPS == 0
+        if grow and width >= limit:
+            if full:
+                # More values above tau than the widest block: also above any smaller tau.
+                warm.too_many_above = tau
+            break
+        if grow:
+            width = min(width + GUARD + width // 2, limit)
+        extra = warm.rng.standard_normal((m, width - power.shape[1]))
+        q = np.linalg.qr(np.hstack([power, extra]))[0]
     warm.fallbacks += 1
-    warm.vectors, warm.surviving = None, 0
+    warm.vectors, warm.surviving = u, min(count, width - 1)
     return None
 
 

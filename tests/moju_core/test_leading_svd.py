@@ -66,10 +66,10 @@ def test_warm_start_settles_in_fewer_sweeps_than_a_cold_one():
     nearby = x + 1e-3 * rng.standard_normal(x.shape)  # the next iteration's input, say
     warm = lrr.WarmStart()
     lrr.singular_value_threshold(x, 0.3, keep=1, warm=warm)
-    before = warm.sweeps
+    before, surviving = warm.sweeps, warm.surviving
     y_warm, _ = lrr.singular_value_threshold(nearby, 0.3, keep=1, warm=warm)
     warm_sweeps = warm.sweeps - before
-    cold = lrr.WarmStart()
+    cold = lrr.WarmStart(surviving=surviving)  # the same block width, random vectors
     y_cold, _ = lrr.singular_value_threshold(nearby, 0.3, keep=1, warm=cold)
     assert warm_sweeps < cold.sweeps
     assert_allclose(y_warm, y_cold, atol=1e-9 * np.abs(y_cold).max())
@@ -104,8 +104,13 @@ def test_a_block_too_wide_falls_back_to_the_exact_route():
     x = np.random.default_rng(7).standard_normal(shape)  # every value is above a small tau
     warm = lrr.WarmStart()
     y, _ = lrr.singular_value_threshold(x, 1.0, keep=1, warm=warm)
-    assert warm.fallbacks == 1 and warm.vectors is None
+    assert warm.fallbacks == 1
     assert_allclose(y, _exact(x, 1.0, keep=1), atol=1e-9)
+    # A smaller threshold leaves even more values above it: straight to the exact route.
+    before = warm.sweeps
+    y, _ = lrr.singular_value_threshold(x, 0.5, keep=1, warm=warm)
+    assert warm.fallbacks == 2 and warm.sweeps == before
+    assert_allclose(y, _exact(x, 0.5, keep=1), atol=1e-9)
 
 
 def test_small_inputs_take_the_gram_route_whatever_the_warm_start():
