@@ -137,3 +137,9 @@ def test_the_solve_with_the_truncated_threshold_matches_the_gram_route(monkeypat
     assert len(calls) >= truncated.n_iter
     assert truncated.n_iter == gram.n_iter
     assert_allclose(truncated.shapes, gram.shapes, atol=1e-7 * np.abs(gram.shapes).max())
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_top_singular_value_of_a_large_matrix(shape):
+    x = _low_rank_plus_noise(shape, seed=9)
+    assert lrr.top_singular_value(x) == pytest.approx(np.linalg.norm(x, 2), rel=1e-12)
