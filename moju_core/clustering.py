@@ -11,14 +11,23 @@ from sklearn.neighbors import NearestNeighbors
 
 from moju_core.grassmann import projection_distance_sq
 
+#: Up to this many rows (2F) the principal directions of :func:`track_features` come from the
+#: 2F x 2F Gram matrix, O(F^2 P + F^3); beyond it from a randomized range finder, O(F P).
+FEATURES_GRAM_MAX_ROWS = 1000
+#: Extra columns and power iterations of that range finder.
+FEATURES_OVERSAMPLING = 10
+FEATURES_POWER_ITERATIONS = 4
+
 
 def track_features(tracks: np.ndarray, n_components: int = 12) -> np.ndarray:
     """Low-dimensional coordinates of every point's 2D track, for k-means and neighbour search.
 
     The tracks lie close to a rank-3K subspace, so Euclidean distances between tracks are kept
     almost exactly by their coordinates in the top principal directions, at a fraction of the
-    cost of working with 2F-dimensional vectors (the principal directions come from the
-    2F x 2F Gram matrix).
+    cost of working with 2F-dimensional vectors. The principal directions come from the
+    2F x 2F Gram matrix up to ``FEATURES_GRAM_MAX_ROWS`` rows; for longer sequences from a
+    randomized range finder (seeded: a block of c + 10 columns, 4 power iterations, and the
+    SVD of its (c + 10, P) projection of the tracks), which costs O(F P c).
 
     Parameters
     ----------
@@ -32,8 +41,21 @@ def track_features(tracks: np.ndarray, n_components: int = 12) -> np.ndarray:
     ndarray of shape (P, c)
     """
     c = min(n_components, tracks.shape[0])
+    if tracks.shape[0] > FEATURES_GRAM_MAX_ROWS:
+        return (_principal_directions(tracks, c).T @ tracks).T
     _, vectors = np.linalg.eigh(tracks @ tracks.T)
     return (vectors[:, ::-1][:, :c].T @ tracks).T
+
+
+def _principal_directions(tracks: np.ndarray, c: int) -> np.ndarray:
+    """The top c left singular vectors of tracks (m, n), approximately, shape (m, c)."""
+    rng = np.random.default_rng(0)
+    width = min(c + FEATURES_OVERSAMPLING, *tracks.shape)
+    block = np.linalg.qr(tracks @ rng.standard_normal((tracks.shape[1], width)))[0]
+    for _ in range(FEATURES_POWER_ITERATIONS):
+        block = np.linalg.qr(tracks @ (tracks.T @ block))[0]
+    left, _, _ = np.linalg.svd(block.T @ tracks, full_matrices=False)
+    return block @ left[:, :c]
 
 
 #: The initial k-means is fitted on at most this many tracks per group (a random sample) and

@@ -1,7 +1,7 @@
 """Initial groups, the neighbour graph, spectral clustering and regrouping."""
 
 import numpy as np
-from numpy.testing import assert_array_equal
+from numpy.testing import assert_allclose, assert_array_equal
 
 from moju_core import clustering
 
@@ -90,3 +90,18 @@ def test_regroup_never_leaves_a_group_below_the_minimum_size():
     labels[30:] = 0  # and all of group 1's in group 0
     new = clustering.regroup(trajectories, labels, bases, np.array([0, 0]), min_size=20)
     assert np.bincount(new, minlength=2).min() >= 20
+
+
+def test_track_features_of_a_long_sequence_keep_the_top_principal_coordinates():
+    # Beyond FEATURES_GRAM_MAX_ROWS rows the directions come from a randomized range finder:
+    # the features' inner products (sign- and rotation-free) equal those of the exact top 12.
+    rng = np.random.default_rng(0)
+    rows, n_points, rank = clustering.FEATURES_GRAM_MAX_ROWS + 2, 300, 12
+    values = 10.0 ** -np.linspace(0.0, 2.0, rank)
+    tracks = (rng.standard_normal((rows, rank)) * values) @ rng.standard_normal((rank, n_points))
+    tracks += 1e-6 * rng.standard_normal(tracks.shape)
+    features = clustering.track_features(tracks)
+    u, s, vt = np.linalg.svd(tracks, full_matrices=False)
+    exact = vt[:12].T * s[:12]
+    assert features.shape == (n_points, 12)
+    assert_allclose(features @ features.T, exact @ exact.T, atol=1e-9 * s[0] ** 2)
