@@ -18,10 +18,13 @@ One sweep, with Q (m, b) orthonormal:
 
 The triplets are accepted when every value above the threshold (or kept) has a residual below
 ``RELATIVE_TOLERANCE * theta_1`` and the block also holds one value below the threshold that is
-itself settled (``theta + e`` at most the threshold); while every value of the block is above
-the threshold the block grows. With the accepted triplets ``X`` differs from
-``U diag(theta) V^T + (I - U U^T) X`` by at most the residuals, and the threshold is
-non-expansive, so the result differs from the exact one by about ``sqrt(sum e_i^2)``.
+itself settled (``theta + e`` at most the threshold). While every value of the block is above
+the threshold, and every ``SLOW_SWEEPS`` sweeps without acceptance, the block widens by random
+columns. Since ``U^T e_i = 0``, the accepted triplets are exact singular triplets of
+``X - E`` with ``E = sum_i e_i v_i^T`` (over the returned ones), ``||E||_F = sqrt(sum e_i^2)``;
+the threshold is non-expansive, so the result differs from the exact one by at most that
+(given that no value of ``X - E`` outside the block exceeds the threshold, which the settled
+value below it stands for).
 """
 
 from __future__ import annotations
