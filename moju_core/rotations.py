@@ -43,7 +43,9 @@ import scipy.linalg
 from scipy.optimize import minimize
 from threadpoolctl import threadpool_limits
 
+from moju_core import feasibility
 from moju_core.errors import MeasurementError
+from moju_core.feasibility import min_frames_for_bases
 
 __all__ = [
     "choose_n_bases",
@@ -191,28 +193,6 @@ def _project_psd(M: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------
 
 
-def min_frames_for_bases(n_bases: int) -> int:
-    """Fewest frames for which the intersection constraints can determine ``Q``.
-
-    ``Q`` (3K x 3K, symmetric) has ``3K (3K + 1) / 2`` unknowns and, noise-free, a solution
-    space of dimension ``2K^2 - K`` (Akhter et al., "In defense of orthonormality
-    constraints", CVPR 2009; Dai et al. 2012). Every frame gives two equations, so at least
-    ``(5K^2 + 5K) / 4`` frames are needed. For K = 1 this is 3: the classic requirement of
-    three orthographic views for a rigid Euclidean reconstruction.
-
-    Parameters
-    ----------
-    n_bases : int
-        Number of shape bases K >= 1.
-
-    Returns
-    -------
-    int
-        ``ceil(5 K (K + 1) / 4)``.
-    """
-    return math.ceil(5 * n_bases * (n_bases + 1) / 4)
-
-
 def _check_measurements(W: np.ndarray) -> np.ndarray:
     """Return W as a float64 array of shape (2F, P) or raise MeasurementError."""
     W = np.asarray(W, dtype=np.float64)
@@ -227,29 +207,13 @@ def _check_measurements(W: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(W)):
         raise MeasurementError("W contains NaN or infinite values; fill or drop those tracks")
     n_frames = W.shape[0] // 2
-    if n_frames < 3:
-        raise MeasurementError(
-            f"rotation estimation needs at least 3 frames (orthographic views), got {n_frames}"
-        )
+    feasibility.check_rotation_frames(n_frames)
     return W
 
 
 def _check_n_bases(n_bases: int, n_frames: int, n_points: int) -> None:
     """Raise MeasurementError when W is too small for a rank-3K factorisation."""
-    if isinstance(n_bases, bool) or not isinstance(n_bases, (int, np.integer)) or n_bases < 1:
-        raise ValueError(f"n_bases must be a positive integer, got {n_bases!r}")
-    needed_frames = min_frames_for_bases(n_bases)
-    if n_frames < needed_frames:
-        raise MeasurementError(
-            f"n_bases={n_bases} needs at least {needed_frames} frames to determine the "
-            f"rotations, got {n_frames}; use fewer shape bases or more frames"
-        )
-    # Centred columns sum to zero, so W has rank at most P - 1.
-    if n_points < 3 * n_bases + 1:
-        raise MeasurementError(
-            f"n_bases={n_bases} needs a rank-{3 * n_bases} factorisation of W and so at least "
-            f"{3 * n_bases + 1} tracked points, got {n_points}"
-        )
+    feasibility.check_n_bases(n_bases, n_frames, n_points)
 
 
 class Spectrum(NamedTuple):

@@ -8,7 +8,18 @@ from collections.abc import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import __version__, admm, camera, cameras, clustering, defaults, lrr, missing, pta
+from moju_core import (
+    __version__,
+    admm,
+    camera,
+    cameras,
+    clustering,
+    defaults,
+    feasibility,
+    lrr,
+    missing,
+    pta,
+)
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams, rotation_method
 from moju_core.preprocessing import normalise
@@ -148,6 +159,8 @@ def _reconstruct(
                 f"({n_frames}, 2, 3), or choose rotations='auto' to estimate them"
             )
         rotations = check_rotations(rotations, n_frames)
+    # Sizes first, with the messages the service gives at submission (moju_core.feasibility).
+    feasibility.check_fit(params, n_frames, n_points, has_rotations=rotations is not None)
     if observed is not None:
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
         # completion of W (moju_core.missing); the loop's data term sees the observed entries.
@@ -182,8 +195,8 @@ def _reconstruct(
     del initial  # (F, 3P): do not hold it through the loop
     params = defaults.resolve(params, n_frames, n_points, top, rotations=rotations)
     params = params.model_copy(update={"n_bases": n_bases})
-    _check_group_sizes(params, n_points)
-    _check_trajectory_bases(params, n_frames)
+    # Again with the values derived from the data.
+    feasibility.check_fit(params, n_frames, n_points, has_rotations=True)
     smoothness_trials: list[tuple[float, float]] = []
     if params.smoothness is None:
 
@@ -311,27 +324,3 @@ def _trajectory_basis(
         stop_reason="converged",
         extras={"n_groups": 1, "pta": diagnostics},
     )
-
-
-def _check_trajectory_bases(params: SolverParams, n_frames: int) -> None:
-    """Refuse a user-set PTA basis with more unknowns per point (3k) than equations (2F)."""
-    if params.method == "pta" and 3 * params.trajectory_bases > 2 * n_frames:
-        raise MeasurementError(
-            f"trajectory_bases={params.trajectory_bases} needs 3k <= 2F, i.e. at least "
-            f"{-(-3 * params.trajectory_bases // 2)} frames; the input has {n_frames}. Lower "
-            f"trajectory_bases (at most {2 * n_frames // 3}) or leave it unset"
-        )
-
-
-def _check_group_sizes(params: SolverParams, n_points: int) -> None:
-    """Refuse a user-set group count that the points cannot fill."""
-    if params.n_groups <= 1:
-        return
-    needed = params.n_groups * defaults.min_group_size(params.subspace_dim)
-    if needed > n_points:
-        raise MeasurementError(
-            f"n_groups={params.n_groups} needs at least {needed} points (groups of at least "
-            f"{defaults.min_group_size(params.subspace_dim)} for subspace_dim="
-            f"{params.subspace_dim}); the input has {n_points}. Lower n_groups or leave it "
-            "unset to derive it from the data"
-        )

@@ -28,10 +28,11 @@ import numpy as np
 from starlette.datastructures import UploadFile
 
 from moju_core.errors import VideoError, VideoTooLarge
+from moju_core.feasibility import describe_bytes
 from moju_core.tracking import DEFAULT_STEP, count_grid_points
 from moju_core.video import VideoInfo, check_clip, open_video, read_mask, sniff_video
 from service.schemas import InputSummary, VideoSummary
-from service.settings import Settings, describe_bytes
+from service.settings import Settings
 
 #: Largest mask PNG read (a 1920 x 1080 RGBA PNG without compression is about 8 MiB).
 MAX_MASK_BYTES = 16 * 2**20

@@ -219,8 +219,8 @@ def test_memory_limit_answers_413(settings: Settings, tmp_path: Path, redis_clie
         response = upload(client, tmp_path / "big.npz")
     assert response.status_code == 413
     assert response.json()["detail"] == (
-        "300 frames x 2000 points would need about 274 MiB to solve; this server's workers "
-        "allow 256 MiB per job (MOJU_WORKER_MEMORY_BYTES): subsample the points or frames"
+        "300 frames x 2000 points would need about 274 MiB to solve; the limit is 256 MiB "
+        "per job (MOJU_WORKER_MEMORY_BYTES): subsample the points or frames"
     )
     assert list((limited.data_dir / "jobs").iterdir()) == []
     assert redis_client.keys("*") == []
