@@ -28,6 +28,7 @@ from typing import Any, Protocol
 import h5py
 import numpy as np
 
+from moju_core import file_types
 from moju_core.io import read_result
 
 __all__ = [
@@ -48,7 +49,6 @@ DEFAULT_MAX_POINTS = 20_000
 SUBSET_SEED = 0
 #: Coordinates are rounded to this fraction of the frame's largest absolute coordinate.
 RELATIVE_PRECISION = 1e-4
-_HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
 class FrameStack(Protocol):
@@ -140,7 +140,7 @@ def open_result(path: str | Path) -> Iterator[ResultView]:
     """
     path = Path(path)
     with open(path, "rb") as handle:
-        is_hdf5 = handle.read(8) == _HDF5_MAGIC
+        is_hdf5 = file_types.array_file_type(handle.read(file_types.HEAD_BYTES)) == "h5"
     if not is_hdf5:
         yield ResultView.of(read_result(path))
         return

@@ -24,7 +24,7 @@ from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 from starlette.requests import Request
 
-from moju_core import feasibility
+from moju_core import feasibility, file_types
 from moju_core.errors import MeasurementError, MeasurementTooLarge
 from moju_core.io import Measurements, read_measurements
 from moju_core.params import SolverParams, rotation_method
@@ -167,12 +167,11 @@ def _display_name(filename: str | None) -> str | None:
 def _file_format(upload: UploadFile) -> str:
     """npz, h5 or csv: by the first bytes (as moju_core.io does), then by the file name."""
     upload.file.seek(0)
-    magic = upload.file.read(8)
+    head = upload.file.read(file_types.HEAD_BYTES)
     upload.file.seek(0)
-    if magic.startswith(b"PK\x03\x04"):
-        return "npz"
-    if magic.startswith(b"\x89HDF\r\n\x1a\n"):
-        return "h5"
+    found = file_types.array_file_type(head)
+    if found in ("npz", "h5"):
+        return found
     return _FILE_FORMATS.get(PurePath(upload.filename or "").suffix.lower(), "csv")
 
 
