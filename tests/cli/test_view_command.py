@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +21,7 @@ from moju_core import reconstruct
 from moju_core.datasets import make_sequence
 from moju_core.io import Measurements, write_measurements, write_result
 from moju_core.params import SolverParams
-
-STATIC = Path(__file__).resolve().parents[2] / "service" / "static"
+from moju_viewer.assets import read_asset
 
 
 @pytest.fixture(scope="module")
@@ -59,10 +57,10 @@ def test_writes_a_self_contained_page(files, tmp_path: Path) -> None:
     assert f"wrote {output} (10 frames, all 300 points, " in run.output
     page = output.read_text()
 
-    # Everything inline: plotly.js from the plotly package, the service's viewer and style.
+    # Everything inline: plotly.js from the plotly package, the viewer's script and style.
     assert get_plotlyjs() in page
-    assert (STATIC / "viewer.js").read_text() in page
-    assert (STATIC / "style.css").read_text() in page
+    assert read_asset("viewer.js") in page
+    assert read_asset("style.css") in page
     assert not re.search(r"""<(?:script|link|img)[^>]+(?:src|href)=["'](?!data:)""", page)
     assert page.count("</script>") == page.count("<script")
 
@@ -107,7 +105,8 @@ def test_refuses_a_mismatched_input_and_a_file_that_is_no_result(files) -> None:
 
 
 def test_says_what_to_install_without_plotly(files, tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setitem(sys.modules, "plotly.offline", None)  # import fails as if absent
+    # As if plotly were not installed: no plotly.min.js to be found.
+    monkeypatch.setattr("moju_cli.view_commands.plotly_js_path", lambda: None)
     run = CliRunner().invoke(cli, ["view", str(files["result"]), "-o", str(tmp_path / "v.html")])
     assert run.exit_code == 1
     assert "moju view needs the plotly package: pip install 'moju[service]'" in run.output

@@ -10,7 +10,7 @@
  * /v1/jobs/{id}/viewer-data, one frame at a time) and the standalone file written by
  * `moju view` (data embedded in the file). A "source" hides the difference: an object with
  * summary() and frame(f), both returning promises of the documents built by
- * moju_core/viewer.py.
+ * moju_viewer/data.py.
  */
 (function (global) {
   "use strict";

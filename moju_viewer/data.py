@@ -1,4 +1,4 @@
-"""Plot-ready views of a reconstruction, for the result viewer.
+"""Plot-ready views of a reconstruction, for the result viewer (presentation, not solving).
 
 The viewer (the service's web page and the standalone file of ``moju view``) shows one frame
 at a time as a 3D point cloud, or as a mesh when triangles were uploaded, coloured by local

@@ -1,4 +1,4 @@
-"""moju_core.viewer: the subset of shown points, depth, frames, summary, lazy result files."""
+"""moju_viewer.data: the subset of shown points, depth, frames, summary, lazy result files."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from moju_core import reconstruct
 from moju_core.datasets import make_sequence
 from moju_core.io import write_result
 from moju_core.params import SolverParams
-from moju_core.viewer import (
+from moju_viewer.data import (
     ResultView,
     camera_depth,
     frame_data,
