@@ -26,6 +26,7 @@ from pydantic import ValidationError
 from pydantic.fields import FieldInfo
 from tqdm import tqdm
 
+from moju_cli.stop_reasons import describe_stop
 from moju_core import defaults
 from moju_core.datasets import HARD_SEQUENCE_NAMES, SEQUENCE_NAMES, make_sequence
 from moju_core.errors import MeasurementError
@@ -54,13 +55,6 @@ DEFAULT_THREADS = 1
 
 #: Exit status of a process stopped by SIGINT, as shells report it (128 + signal 2).
 EXIT_INTERRUPTED = 130
-
-#: What each stop reason of :attr:`moju_core.result.Result.stop_reason` means, for humans.
-STOP_REASONS = {
-    "converged": "converged: the gap fell below tol",
-    "rho_max": "stopped: the penalty reached rho_max",
-    "max_iter": "stopped: max_iter iterations reached",
-}
 
 #: Labels of the scores of :func:`moju_core.metrics.evaluate`, in printing order.
 SCORE_LABELS = {
@@ -177,7 +171,9 @@ class _ProgressBar:
 
     The bar counts ADMM iterations against :func:`moju_core.defaults.expected_iterations`
     (the iterations until the penalty reaches ``rho_max``), which is exact unless the gap
-    converges first; it then jumps to the end.
+    converges first; it then jumps to the end. While iterating it shows the gap the solver
+    reports (the larger of the shape and coefficient gaps); at the end, the last shape gap,
+    the one the convergence test compares with ``tol`` (:meth:`finish`).
     """
 
     def __init__(self, params: SolverParams, enabled: bool) -> None:
@@ -204,6 +200,12 @@ class _ProgressBar:
             # An early convergence ends the loop before the expected count: show it complete.
             self.bar.total = max(self.bar.n, 1)
             self.bar.refresh()
+
+    def finish(self, result: Result) -> None:
+        """Show the last shape gap of ``result``, which the stop reason is about."""
+        shape_gap = _last_shape_gap(result)
+        if shape_gap is not None and self.bar.n:
+            self.bar.set_postfix_str(f"shape gap={shape_gap:.1e}", refresh=True)
 
     def warn(
         self,
@@ -246,9 +248,11 @@ def _solve(
             warnings.showwarning = bar.warn
             # Complete data go through the call as before; a mask only when something is missing.
             masked = {} if visibility is None else {"visibility": visibility}
-            return reconstruct(
+            result = reconstruct(
                 W, params, rotations=rotations, callback=bar, threads=threads, **masked
             )
+        bar.finish(result)
+        return result
     except MeasurementError as exc:
         raise click.ClickException(str(exc)) from exc
     finally:
@@ -384,8 +388,18 @@ def _format_scores(scores: dict[str, float], *, rotations_estimated: bool) -> li
     return lines
 
 
+def _last_shape_gap(result: Result) -> float | None:
+    shape_gaps = result.history.get("gap_shape")
+    return float(shape_gaps[-1]) if shape_gaps is not None and len(shape_gaps) else None
+
+
 def _summary(result: Result, n_frames: int, n_points: int, observed: float = 1.0) -> str:
-    reason = STOP_REASONS.get(result.stop_reason, result.stop_reason)
+    reason = describe_stop(
+        str(result.stop_reason),
+        method=result.params.method,
+        tol=result.params.tol,
+        shape_gap=_last_shape_gap(result),
+    )
     seen = f" ({100 * observed:.1f} % observed)" if observed < 1.0 else ""
     return (
         f"{n_frames} frames x {n_points} points{seen}: {result.n_iter} "
@@ -394,9 +408,7 @@ def _summary(result: Result, n_frames: int, n_points: int, observed: float = 1.0
     )
 
 
-def _occlusion_mask(
-    used: np.ndarray | None, of_input: np.ndarray | None
-) -> np.ndarray | None:
+def _occlusion_mask(used: np.ndarray | None, of_input: np.ndarray | None) -> np.ndarray | None:
     """The visibility to score the occluded entries by: the one the solver used (the result's)
     when it misses something, else the input's; None when neither does."""
     for mask in (used, of_input):

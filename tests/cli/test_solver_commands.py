@@ -606,7 +606,11 @@ def test_console_script_reconstructs(inputs, tmp_path):
     assert "iterating" in completed.stderr  # the progress bar goes to stderr ...
     assert "iterating" not in completed.stdout  # ... and the summary to stdout
     assert "e3D, per-frame Procrustes alignment" in completed.stdout
-    assert read_result(output).shapes.shape == (N_FRAMES, N_POINTS, 3)
+    stored = read_result(output)
+    assert stored.shapes.shape == (N_FRAMES, N_POINTS, 3)
+    # The bar ends on the shape gap, the one the stop reason is about.
+    shown = re.findall(r"shape gap=(\S+?)\]", completed.stderr)
+    assert shown and shown[-1] == f"{stored.history['gap_shape'][-1]:.1e}", completed.stderr
     assert len(list(ply_dir.glob("*.ply"))) == N_FRAMES
 
 
