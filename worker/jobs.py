@@ -52,6 +52,7 @@ from service.schemas import JobRecord
 from service.settings import WORKER_MEMORY_SETTING, Settings, get_settings
 from service.states import JobStatus
 from service.storage import LocalStorage, Storage
+from worker import rq_log
 from worker.heartbeat import Heartbeat
 from worker.progress import ProgressReporter
 
@@ -81,9 +82,12 @@ def run_reconstruction(job_id: str) -> dict[str, Any]:
     store = JobStore(connection, retention_seconds=settings.result_ttl)
     # The limit that applies is the one the API gave RQ when it enqueued the job.
     time_limit = rq_job.timeout if rq_job is not None and rq_job.timeout else None
-    return execute(
+    outcome = execute(
         UUID(job_id), store, LocalStorage(settings.data_dir), settings, time_limit=time_limit
     )
+    if rq_job is not None:  # for RQ's log line of this job (worker.rq_log)
+        rq_log.note_outcome(rq_job.id, str(outcome.get("status")))
+    return outcome
 
 
 def _summary(

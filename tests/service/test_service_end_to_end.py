@@ -215,6 +215,9 @@ def test_running_job_is_cancelled_at_its_next_iteration(
     assert final["progress"]["iteration"] < LONG_PARAMS["max_iter"]
     assert not (settings.data_dir / "jobs" / job["id"]).exists()
     assert "stopped, it is cancelled" in worker.log()
+    # RQ's own line about the job says how it ended, not "Job OK" (worker.rq_log).
+    assert f"Job ended, cancelled ({job['id']})" in worker.log()
+    assert f"Job OK ({job['id']})" not in worker.log()
 
     # The worker is free again: a small job runs to the end.
     small = client.post(
@@ -226,6 +229,8 @@ def test_running_job_is_cancelled_at_its_next_iteration(
         timeout=30,
         message="the next job to finish",
     )
+    # ... and RQ calls that one OK, as it was.
+    wait_for(lambda: f"Job OK ({small['id']})" in worker.log(), timeout=10, message="Job OK")
 
 
 def test_solver_refusal_is_reported_verbatim(live_api: str, worker) -> None:
