@@ -27,6 +27,7 @@ from pydantic.fields import FieldInfo
 from tqdm import tqdm
 
 from moju_cli.stop_reasons import describe_stop
+from moju_cli.video_commands import check_frame_range, tracking_options
 from moju_core import defaults
 from moju_core.datasets import HARD_SEQUENCE_NAMES, SEQUENCE_NAMES, make_sequence
 from moju_core.errors import MeasurementError
@@ -437,30 +438,7 @@ def _occlusion_mask(used: np.ndarray | None, of_input: np.ndarray | None) -> np.
     help="Also write one PLY per frame here (with INPUT's faces and colors when present; "
     "for a video, coloured from its first frame).",
 )
-@click.option(
-    "--mask",
-    type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    default=None,
-    help="Video only, as for moju track: PNG marking the object in the first tracked frame.",
-)
-@click.option(
-    "--step",
-    type=click.IntRange(min=1),
-    default=None,
-    help=f"Video only: grid spacing of the tracked points in pixels [default: {DEFAULT_STEP}].",
-)
-@click.option(
-    "--start",
-    type=click.IntRange(min=0),
-    default=None,
-    help="Video only: first frame to track (from 0) [default: 0].",
-)
-@click.option(
-    "--end",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Video only: frame to stop before (exclusive) [default: the last frame].",
-)
+@tracking_options(video_only=True)
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 @_threads_option
 @_solver_options
@@ -573,9 +551,7 @@ def _check_video_options(video: bool, **options: Any) -> None:
             f"{names} only apply to a video input (mp4, webm, avi or a folder of images); "
             "INPUT is a measurement file"
         )
-    start, end = options["start"] or 0, options["end"]
-    if end is not None and end <= start:
-        raise click.BadParameter(f"--end ({end}) must be after --start ({start})")
+    check_frame_range(options["start"], options["end"])
 
 
 def _track_video_input(
