@@ -1,4 +1,4 @@
-"""Camera rotations of an orthographic non-rigid sequence (algorithm.md, Pre-processing, item 3).
+"""Camera rotations of an orthographic non-rigid sequence (the camera step of docs/solver.md).
 
 Two estimators, selected by name in :func:`estimate_rotations`:
 
