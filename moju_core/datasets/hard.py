@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from moju_core.datasets._assembly import check_sizes, finish, streams
+from moju_core.datasets._assembly import sheet_start
 from moju_core.datasets._camera_paths import CAMERA_MOTIONS, CameraMotion, hard_camera
 from moju_core.datasets._surface import (
     bend_sheet,
     cumulative_trapezoid,
     gaussian,
-    parameter_grid,
     ramp_colors,
     sigmoid,
 )
@@ -51,20 +50,18 @@ def flag_sequence(
     -------
     sequence : Sequence
     """
-    check_sizes(n_frames, n_points)
-    deformation_rng, camera_rng, translation_rng = streams(seed)
     length, height = 1.4, 1.0
-    u, v, faces = parameter_grid(n_points, aspect=length / height)
+    sheet = sheet_start(n_frames, n_points, seed, aspect=length / height)
+    u, v, times, rng = sheet.u, sheet.v, sheet.times, sheet.deformation_rng
     x, y = u * length, v * height
 
     n_waves = 2
-    directions = deformation_rng.uniform(-0.5, 0.5, size=n_waves)
-    wavelengths = deformation_rng.uniform(0.5, 0.85, size=n_waves) * length
-    amplitudes = deformation_rng.uniform(0.10, 0.12, size=n_waves) * length
-    travel = deformation_rng.uniform(1.5, 3.0, size=n_waves)  # wavelengths per sequence
-    phases = deformation_rng.uniform(0.0, 2.0 * np.pi, size=n_waves)
+    directions = rng.uniform(-0.5, 0.5, size=n_waves)
+    wavelengths = rng.uniform(0.5, 0.85, size=n_waves) * length
+    amplitudes = rng.uniform(0.10, 0.12, size=n_waves) * length
+    travel = rng.uniform(1.5, 3.0, size=n_waves)  # wavelengths per sequence
+    phases = rng.uniform(0.0, 2.0 * np.pi, size=n_waves)
 
-    times = np.linspace(0.0, 1.0, n_frames)[:, None]
     envelope = 1.0 - (1.0 - u) ** 2  # zero on the pinned edge u = 0
     shapes = np.zeros((n_frames, n_points, 3))
     shapes[:, :, 0] = x
@@ -78,9 +75,9 @@ def flag_sequence(
         shapes[:, :, 0] += in_plane * direction[0]
         shapes[:, :, 1] += in_plane * direction[1]
 
-    rotations = hard_camera(n_frames, camera, camera_rng)
+    rotations = hard_camera(n_frames, camera, sheet.camera_rng)
     colors = ramp_colors(x - 0.3 * y, low=(30, 60, 170), high=(240, 240, 240))
-    return finish(f"flag-{camera}", shapes, rotations, translation_rng, length, faces, colors)
+    return sheet.finish(f"flag-{camera}", shapes, rotations, length, colors)
 
 
 def roll_sequence(
@@ -115,17 +112,15 @@ def roll_sequence(
     -------
     sequence : Sequence
     """
-    check_sizes(n_frames, n_points)
-    deformation_rng, camera_rng, translation_rng = streams(seed)
+    sheet = sheet_start(n_frames, n_points, seed, aspect=1.4)
     length, width = 2.0, 2.0 / 1.4
-    u, v, faces = parameter_grid(n_points, aspect=1.4)
+    u, v, times, rng = sheet.u, sheet.v, sheet.times, sheet.deformation_rng
 
-    final_turn = np.radians(deformation_rng.uniform(430.0, 540.0))
-    final_start = deformation_rng.uniform(0.25, 0.35)
-    sense = deformation_rng.choice([-1.0, 1.0])
-    flip = deformation_rng.random() < 0.5
+    final_turn = np.radians(rng.uniform(430.0, 540.0))
+    final_start = rng.uniform(0.25, 0.35)
+    sense = rng.choice([-1.0, 1.0])
+    flip = rng.random() < 0.5
 
-    times = np.linspace(0.0, 1.0, n_frames)[:, None]
     progress = times**2 * (3.0 - 2.0 * times)
     s = np.linspace(0.0, length, 2049)
     roll_start = length * (0.9 - (0.9 - final_start) * progress)
@@ -141,9 +136,9 @@ def roll_sequence(
     shapes[:, :, 2] = curve[..., 1]
     shapes[:, :, 1] = v * width
 
-    rotations = hard_camera(n_frames, camera, camera_rng)
+    rotations = hard_camera(n_frames, camera, sheet.camera_rng)
     colors = ramp_colors(u, low=(240, 235, 215), high=(200, 90, 60))
-    return finish(f"roll-{camera}", shapes, rotations, translation_rng, length, faces, colors)
+    return sheet.finish(f"roll-{camera}", shapes, rotations, length, colors)
 
 
 def bumps_sequence(
@@ -177,24 +172,20 @@ def bumps_sequence(
     -------
     sequence : Sequence
     """
-    check_sizes(n_frames, n_points)
-    deformation_rng, camera_rng, translation_rng = streams(seed)
+    sheet = sheet_start(n_frames, n_points, seed, aspect=1.0)
     side, n_cells = 1.4, 4
     spacing = side / n_cells
-    u, v, faces = parameter_grid(n_points, aspect=1.0)
+    u, v, times, rng = sheet.u, sheet.v, sheet.times, sheet.deformation_rng
     x, y = u * side, v * side
 
     rows, cols = np.divmod(np.arange(n_cells**2), n_cells)
-    centres_x = (cols + 0.5 + deformation_rng.uniform(-0.15, 0.15, n_cells**2)) * spacing
-    centres_y = (rows + 0.5 + deformation_rng.uniform(-0.15, 0.15, n_cells**2)) * spacing
-    widths = deformation_rng.uniform(0.38, 0.46, n_cells**2) * spacing
-    heights = deformation_rng.uniform(0.24, 0.30, n_cells**2)
-    cycles = deformation_rng.uniform(1.0, 2.0, n_cells**2)
-    phases = np.pi * ((rows + cols) % 2) + deformation_rng.uniform(
-        -0.5 * np.pi, 0.5 * np.pi, n_cells**2
-    )
+    centres_x = (cols + 0.5 + rng.uniform(-0.15, 0.15, n_cells**2)) * spacing
+    centres_y = (rows + 0.5 + rng.uniform(-0.15, 0.15, n_cells**2)) * spacing
+    widths = rng.uniform(0.38, 0.46, n_cells**2) * spacing
+    heights = rng.uniform(0.24, 0.30, n_cells**2)
+    cycles = rng.uniform(1.0, 2.0, n_cells**2)
+    phases = np.pi * ((rows + cols) % 2) + rng.uniform(-0.5 * np.pi, 0.5 * np.pi, n_cells**2)
 
-    times = np.linspace(0.0, 1.0, n_frames)[:, None]
     amplitude = heights * np.sin(2.0 * np.pi * cycles * times + phases)  # (F, K)
     bump_fields = np.stack(
         [
@@ -207,9 +198,9 @@ def bumps_sequence(
     shapes[:, :, 1] = y
     shapes[:, :, 2] = amplitude @ bump_fields
 
-    rotations = hard_camera(n_frames, camera, camera_rng)
+    rotations = hard_camera(n_frames, camera, sheet.camera_rng)
     colors = ramp_colors(bump_fields.sum(axis=0), low=(60, 120, 60), high=(230, 220, 140))
-    return finish(f"bumps-{camera}", shapes, rotations, translation_rng, side, faces, colors)
+    return sheet.finish(f"bumps-{camera}", shapes, rotations, side, colors)
 
 
 HARD_GENERATORS = {"flag": flag_sequence, "roll": roll_sequence, "bumps": bumps_sequence}

@@ -29,7 +29,8 @@ class Sequence:
     colors : ndarray of shape (P, 3), uint8
         A per-point colour (shading by height or by surface coordinate).
     noise : float, default 0.0
-        The noise level ``lambda_g`` that was added to ``W`` (see :func:`moju_core.datasets.add_noise`).
+        The noise level ``lambda_g`` that was added to ``W``
+        (:func:`moju_core.datasets.add_noise`).
     """
 
     name: str

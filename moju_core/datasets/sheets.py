@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from moju_core.datasets._assembly import check_sizes, finish, streams
+from moju_core.datasets._assembly import sheet_start
 from moju_core.datasets._camera_paths import SHEET_CAMERA_RANGE_DEG, camera_rotations
 from moju_core.datasets._surface import (
     bend_sheet,
     cumulative_trapezoid,
-    parameter_grid,
     ramp_colors,
     sigmoid,
 )
@@ -41,15 +40,13 @@ def paper_sequence(n_frames: int = 60, n_points: int = 10_000, seed: int = 0) ->
     -------
     sequence : Sequence
     """
-    check_sizes(n_frames, n_points)
-    deformation_rng, camera_rng, translation_rng = streams(seed)
+    sheet = sheet_start(n_frames, n_points, seed, aspect=1.4)
     length, width = 2.0, 2.0 / 1.4
-    u, v, faces = parameter_grid(n_points, aspect=1.4)
+    u, v, times, rng = sheet.u, sheet.v, sheet.times, sheet.deformation_rng
 
-    final_turn = np.radians(deformation_rng.uniform(200.0, 240.0))
-    s_bend = deformation_rng.uniform(0.25, 0.40)  # half the peak tangent angle, radians
+    final_turn = np.radians(rng.uniform(200.0, 240.0))
+    s_bend = rng.uniform(0.25, 0.40)  # half the peak tangent angle, radians
 
-    times = np.linspace(0.0, 1.0, n_frames)[:, None]
     progress = times**2 * (3.0 - 2.0 * times)  # smoothstep: rolling starts and ends gently
     # 2049 samples keep the polyline's chord error far below anything a test can see.
     s = np.linspace(0.0, length, 2049)
@@ -67,9 +64,9 @@ def paper_sequence(n_frames: int = 60, n_points: int = 10_000, seed: int = 0) ->
     shapes[:, :, 2] = curve[..., 1]
     shapes[:, :, 1] = v * width
 
-    camera = camera_rotations(n_frames, SHEET_CAMERA_RANGE_DEG, "high", camera_rng)
+    camera = camera_rotations(n_frames, SHEET_CAMERA_RANGE_DEG, "high", sheet.camera_rng)
     colors = ramp_colors(u, low=(235, 235, 225), high=(120, 160, 220))
-    return finish("paper", shapes, camera, translation_rng, length, faces, colors)
+    return sheet.finish("paper", shapes, camera, length, colors)
 
 
 def cloth_sequence(n_frames: int = 60, n_points: int = 10_000, seed: int = 0) -> Sequence:
@@ -96,20 +93,18 @@ def cloth_sequence(n_frames: int = 60, n_points: int = 10_000, seed: int = 0) ->
     -------
     sequence : Sequence
     """
-    check_sizes(n_frames, n_points)
-    deformation_rng, camera_rng, translation_rng = streams(seed)
     length, height = 1.4, 1.0
-    u, v, faces = parameter_grid(n_points, aspect=length / height)
+    sheet = sheet_start(n_frames, n_points, seed, aspect=length / height)
+    u, v, times, rng = sheet.u, sheet.v, sheet.times, sheet.deformation_rng
     x, y = u * length, v * height
 
-    directions = np.array([0.0, 1.0, -1.4]) + deformation_rng.uniform(-0.3, 0.3, size=3)
-    wavelengths = deformation_rng.uniform(0.5, 1.0, size=3) * length
-    amplitudes = deformation_rng.uniform(0.10, 0.16, size=3) * length
-    travel = deformation_rng.uniform(1.0, 2.0, size=3)  # wavelengths per sequence
-    phases = deformation_rng.uniform(0.0, 2.0 * np.pi, size=3)
-    bend_phase = deformation_rng.uniform(0.0, 2.0 * np.pi)
+    directions = np.array([0.0, 1.0, -1.4]) + rng.uniform(-0.3, 0.3, size=3)
+    wavelengths = rng.uniform(0.5, 1.0, size=3) * length
+    amplitudes = rng.uniform(0.10, 0.16, size=3) * length
+    travel = rng.uniform(1.0, 2.0, size=3)  # wavelengths per sequence
+    phases = rng.uniform(0.0, 2.0 * np.pi, size=3)
+    bend_phase = rng.uniform(0.0, 2.0 * np.pi)
 
-    times = np.linspace(0.0, 1.0, n_frames)[:, None]
     envelope = 0.25 + 0.75 * u
     shapes = np.zeros((n_frames, n_points, 3))
     shapes[:, :, 0] = x
@@ -126,6 +121,6 @@ def cloth_sequence(n_frames: int = 60, n_points: int = 10_000, seed: int = 0) ->
     bend = 0.3 * np.sin(2.0 * np.pi * 0.5 * times + bend_phase)
     shapes[:, :, 2] += bend * (2.0 * u - 1.0) ** 2
 
-    camera = camera_rotations(n_frames, SHEET_CAMERA_RANGE_DEG, "high", camera_rng)
+    camera = camera_rotations(n_frames, SHEET_CAMERA_RANGE_DEG, "high", sheet.camera_rng)
     colors = ramp_colors(x + 0.5 * y, low=(170, 30, 40), high=(250, 200, 70))
-    return finish("cloth", shapes, camera, translation_rng, length, faces, colors)
+    return sheet.finish("cloth", shapes, camera, length, colors)
