@@ -10,6 +10,14 @@ the caller's hook) ends it. Each step is a function of the state, named after wh
 12. :func:`multiplier_update` (L1, L2), then :func:`reprojection_error`;
 13-15. :func:`increase_penalty` and the stopping test.
 
+A further step is one more such function, called at its place in :func:`iterate`: it reads
+and updates the state's arrays (in group order; a step that reorders the points goes through
+:meth:`~moju_core.loop_state.LoopState.permute`, and a new point-indexed array of the state
+is added there), and what the parameters fix for the whole loop goes into
+:class:`~moju_core.loop_state.LoopSettings` (filled once by
+:func:`~moju_core.loop_state.loop_settings`). A step on the trajectories after the local
+reconstruction goes right after step 9 (:func:`moju_core.grouping_steps.reconstruct_groups`).
+
 The state is kept in per-frame form ``(F, 3, P)``; its two rearrangements are free reshapes:
 trajectory form ``S`` (3F x P, row ``3f + c`` is coordinate c of frame f) and shape form
 ``S#`` (F x 3P, row f is ``[X_f, Y_f, Z_f]``). Point-indexed arrays are kept permuted into
@@ -25,8 +33,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from moju_core import camera, clustering, grouping_steps, lrr, temporal_prior
-from moju_core.defaults import ROTATION_REFINE_RHO, SETTLED_MOVE_FRACTION, min_group_size
-from moju_core.loop_state import GroupCoefficients, LoopState, initial_state, permute_points
+from moju_core.defaults import ROTATION_REFINE_RHO
+from moju_core.loop_state import (
+    GroupCoefficients,
+    LoopSettings,
+    LoopState,
+    initial_state,
+    loop_settings,
+    permute_points,
+)
 from moju_core.params import SolverParams
 from moju_core.rotations import fit_rotations_to_shapes
 from moju_core.stopping import StoppingTest
@@ -64,82 +79,6 @@ class LoopOutput:
     stop_reason: str
     label_changes: int = 0
     extras: dict[str, object] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class LoopSettings:
-    """What the parameters and the input fix for the whole loop (derived once by :func:`run`).
-
-    Attributes
-    ----------
-    params : SolverParams
-        Fully resolved parameters.
-    local : bool
-        Local groups (not ``bmm``, more than one group): steps 2 and 9 run.
-    adaptive : bool
-        The groups adapt (``grouping="adaptive"``): steps 4-8 and the Z-update run too. With
-        ``grouping="fixed"`` (an ablation) the initial groups stay, and each is still
-        reconstructed on its own subspace (steps 2 and 9).
-    refine_rotations : bool
-        The loop re-fits the rotations to the low-rank shapes while ``rho`` is small.
-    prior : TemporalPrior or None
-        The temporal smoothness prior (None for ``smoothness=0``).
-    exact_prior : bool
-        The prior is solved exactly in the S-update (when the loop re-fits the cameras);
-        otherwise it filters S# (cheap, with fixed cameras; see
-        :mod:`moju_core.temporal_prior` for the measurements).
-    kept_values : int
-        Singular values of S# left unshrunk: 1 with ``free_mean_shape`` (the truncated
-        nuclear norm), else 0.
-    min_size : int
-        Smallest group size (:func:`moju_core.defaults.min_group_size`).
-    settled_moves : int
-        A regrouping that moves at most this many trajectories leaves the grouping settled.
-    n_observed : int
-        Observed (frame, point) entries.
-    frame_counts : ndarray of shape (F, 1), float, or None
-        Observed points per frame; None when all are observed.
-    """
-
-    params: SolverParams
-    local: bool
-    adaptive: bool
-    refine_rotations: bool
-    prior: temporal_prior.TemporalPrior | None
-    exact_prior: bool
-    kept_values: int
-    min_size: int
-    settled_moves: int
-    n_observed: int
-    frame_counts: np.ndarray | None
-
-
-def loop_settings(
-    params: SolverParams,
-    n_frames: int,
-    n_points: int,
-    observed: np.ndarray | None,
-    refine_rotations: bool,
-) -> LoopSettings:
-    """The :class:`LoopSettings` of a solve."""
-    local = params.method != "bmm" and params.n_groups > 1
-    adaptive = local and params.grouping == "adaptive"
-    prior = (
-        temporal_prior.temporal_prior(n_frames, params.smoothness) if params.smoothness else None
-    )
-    return LoopSettings(
-        params=params,
-        local=local,
-        adaptive=adaptive,
-        refine_rotations=refine_rotations,
-        prior=prior,
-        exact_prior=prior is not None and refine_rotations,
-        kept_values=1 if params.free_mean_shape else 0,
-        min_size=min_group_size(params.subspace_dim),
-        settled_moves=int(SETTLED_MOVE_FRACTION * n_points),
-        n_observed=n_frames * n_points if observed is None else int(observed.sum()),
-        frame_counts=None if observed is None else observed.sum(axis=1)[:, None].astype(float),
-    )
 
 
 def run(
@@ -187,7 +126,7 @@ def run(
     # hidden entries of a masked input at their completion (moju_core.missing).
     state = initial_state(tracks, rotations, params.rho, observed)
     if settings.local:
-        initial_groups(state, params, features)
+        initial_groups(state, settings, features)
     group_lrr = GroupCoefficients.initial(state.n_groups, n_frames, params.low_dim, params.seed)
     stopping = StoppingTest(params.tol, params.rho_max)
     history: dict[str, list[float]] = {key: [] for key in HISTORY_KEYS}
@@ -218,17 +157,15 @@ def run(
     )
 
 
-def initial_groups(state: LoopState, params: SolverParams, features: np.ndarray | None) -> None:
+def initial_groups(state: LoopState, settings: LoopSettings, features: np.ndarray | None) -> None:
     """The initial local groups (k-means++ on the track features), the state put in their order.
 
     ``features`` of shape (P, c) are computed from the (masked) tracks when None.
     """
-    n_frames, n_points = state.n_frames, state.n_points
+    n_frames, n_points, params = state.n_frames, state.n_points, settings.params
     if features is None:
         features = clustering.track_features(state.tracks.reshape(2 * n_frames, n_points))
-    labels = clustering.initial_labels(
-        features, params.n_groups, min_group_size(params.subspace_dim), params.seed
-    )
+    labels = clustering.initial_labels(features, params.n_groups, settings.min_size, params.seed)
     state.labels, state.features = labels, features
     state.n_groups = int(labels.max()) + 1
     state.permute(np.argsort(labels, kind="stable"))
@@ -263,19 +200,12 @@ def iterate(
         regroup_now = (iteration - 1) % params.regroup_every == 0
         if regroup_now:
             grouping_steps.fit_group_subspaces(state, params.subspace_dim)  # 2
-        if regroup_now and settings.adaptive:
-            grouping_steps.update_kernel(state, group_lrr, params.method, params.n_neighbors)
+            if settings.adaptive:
+                grouping_steps.update_kernel(state, group_lrr, settings)  # 4-6
         if settings.adaptive:
             grouping_steps.update_coefficients(group_lrr, params.beta1, state.rho)  # 7
         if regroup_now and settings.adaptive and params.n_clusters < state.n_groups:
-            relabelled = grouping_steps.move_trajectories(  # 8
-                state,
-                group_lrr,
-                params.n_clusters,
-                settings.min_size,
-                settings.settled_moves,
-                params.seed,
-            )
+            relabelled = grouping_steps.move_trajectories(state, group_lrr, settings)  # 8
         grouping_steps.reconstruct_groups(state, regroup_now)  # 9
     nuclear = low_rank_update(state, settings)  # 10
     if settings.adaptive:

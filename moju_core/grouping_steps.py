@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from moju_core import clustering, grassmann, jump, lrr
-from moju_core.loop_state import GroupCoefficients, LoopState
+from moju_core.loop_state import GroupCoefficients, LoopSettings, LoopState
 
 
 def fit_group_subspaces(state: LoopState, p: int) -> None:
@@ -27,60 +27,57 @@ def fit_group_subspaces(state: LoopState, p: int) -> None:
     )
 
 
-def update_kernel(
-    state: LoopState, lrr_state: GroupCoefficients, method: str, n_neighbors: int
-) -> None:
+def update_kernel(state: LoopState, group_lrr: GroupCoefficients, settings: LoopSettings) -> None:
     """Steps 4-6: similarity graph of neighbouring groups, jump, kernel Gamma.
 
-    The graph links each group to its ``n_neighbors`` spatially nearest ones (centroids of
+    The graph links each group to its ``params.n_neighbors`` spatially nearest ones (centroids of
     the track features). ``moju`` jumps the Grassmann points to the low-dimensional manifold
     (:func:`moju_core.jump.jump`, which updates Delta) and takes the projection kernel
     there; ``sdg`` takes the kernel of the high-dimensional points themselves. A tiny ridge
     (1e-10 of the mean diagonal) keeps Gamma positive definite.
     """
     bounds, bases, n_groups = state.bounds, state.bases, state.n_groups
+    params = settings.params
     centroids = np.add.reduceat(state.features, bounds[:-1], axis=0) / np.diff(bounds)[:, None]
-    edges = clustering.neighbour_edges(centroids, n_neighbors)
+    edges = clustering.neighbour_edges(centroids, params.n_neighbors)
     weights = clustering.similarity_graph(bases, edges)
-    if method == "moju":
-        lrr_state.delta, thetas = jump.jump(lrr_state.delta, bases, weights)
+    if params.method == "moju":
+        group_lrr.delta, thetas = jump.jump(group_lrr.delta, bases, weights)
         gamma = grassmann.projection_kernel(thetas)
     else:
         gamma = grassmann.projection_kernel(bases)
     gamma = gamma + 1e-10 * np.trace(gamma) / n_groups * np.eye(n_groups)
-    lrr_state.kernel = lrr.kernel_eigh(gamma)
+    group_lrr.kernel = lrr.kernel_eigh(gamma)
 
 
-def update_coefficients(lrr_state: GroupCoefficients, beta1: float, rho: float) -> None:
+def update_coefficients(group_lrr: GroupCoefficients, beta1: float, rho: float) -> None:
     """Step 7: the LRR coefficients C, with the kernel of the last regrouping."""
-    lrr_state.coefficients = lrr.coefficient_step(
-        lrr_state.kernel, lrr_state.aux, lrr_state.multiplier, beta1, rho
+    group_lrr.coefficients = lrr.coefficient_step(
+        group_lrr.kernel, group_lrr.aux, group_lrr.multiplier, beta1, rho
     )
 
 
 def move_trajectories(
-    state: LoopState,
-    lrr_state: GroupCoefficients,
-    n_clusters: int,
-    min_size: int,
-    settled_moves: int,
-    seed: int,
+    state: LoopState, group_lrr: GroupCoefficients, settings: LoopSettings
 ) -> int:
     """Step 8: cluster the Grassmann points by C, move trajectories between groups.
 
     When any trajectory moves, the state is re-permuted into the new groups
     (:meth:`~moju_core.loop_state.LoopState.permute`) and the bases refined from the old
     ones (the groups changed by a few members). Sets ``state.grouping_settled`` (at most
-    ``settled_moves`` trajectories moved) and adds to ``state.label_changes``.
+    ``settings.settled_moves`` trajectories moved) and adds to ``state.label_changes``.
 
     Returns
     -------
     int
         Number of trajectories that moved.
     """
-    group_clusters = clustering.cluster_groups(lrr_state.coefficients, n_clusters, seed)
+    params = settings.params
+    group_clusters = clustering.cluster_groups(
+        group_lrr.coefficients, params.n_clusters, params.seed
+    )
     new_labels = clustering.regroup(
-        state.trajectories, state.labels, state.bases, group_clusters, min_size
+        state.trajectories, state.labels, state.bases, group_clusters, settings.min_size
     )
     relabelled = int(np.count_nonzero(new_labels != state.labels))
     if relabelled:
@@ -91,7 +88,7 @@ def move_trajectories(
             state.trajectories, state.bounds, p, previous=state.bases
         )
     state.label_changes += relabelled
-    state.grouping_settled = relabelled <= settled_moves
+    state.grouping_settled = relabelled <= settings.settled_moves
     return relabelled
 
 

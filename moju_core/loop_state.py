@@ -1,6 +1,7 @@
 """The state of the ADMM loop (:mod:`moju_core.admm`) between two of its steps.
 
-Every step of Algorithm 1 reads and updates a :class:`LoopState` (the shapes, their low-rank
+:class:`LoopSettings` holds what the parameters and the input fix for the whole loop. Every
+step of Algorithm 1 reads and updates a :class:`LoopState` (the shapes, their low-rank
 copy, the multiplier, the penalty, the groups) and, for the adaptive grouping, a
 :class:`GroupCoefficients` (the LRR variables of the groups' Grassmann points). The shapes
 are kept in per-frame form ``(F, 3, P)``; the trajectory form ``S`` (3F x P) and the shape
@@ -16,7 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from moju_core import camera, jump, lrr
+from moju_core import camera, jump, lrr, temporal_prior
+from moju_core.defaults import SETTLED_MOVE_FRACTION, min_group_size
+from moju_core.params import SolverParams
 
 
 def permute_points(points_last: np.ndarray, perm: np.ndarray) -> np.ndarray:
@@ -259,3 +262,79 @@ class GroupCoefficients:
             kernel=lrr.kernel_eigh(np.zeros_like(zeros)),
             delta=delta,
         )
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    """What the parameters and the input fix for the whole loop (derived once by :func:`run`).
+
+    Attributes
+    ----------
+    params : SolverParams
+        Fully resolved parameters.
+    local : bool
+        Local groups (not ``bmm``, more than one group): steps 2 and 9 run.
+    adaptive : bool
+        The groups adapt (``grouping="adaptive"``): steps 4-8 and the Z-update run too. With
+        ``grouping="fixed"`` (an ablation) the initial groups stay, and each is still
+        reconstructed on its own subspace (steps 2 and 9).
+    refine_rotations : bool
+        The loop re-fits the rotations to the low-rank shapes while ``rho`` is small.
+    prior : TemporalPrior or None
+        The temporal smoothness prior (None for ``smoothness=0``).
+    exact_prior : bool
+        The prior is solved exactly in the S-update (when the loop re-fits the cameras);
+        otherwise it filters S# (cheap, with fixed cameras; see
+        :mod:`moju_core.temporal_prior` for the measurements).
+    kept_values : int
+        Singular values of S# left unshrunk: 1 with ``free_mean_shape`` (the truncated
+        nuclear norm), else 0.
+    min_size : int
+        Smallest group size (:func:`moju_core.defaults.min_group_size`).
+    settled_moves : int
+        A regrouping that moves at most this many trajectories leaves the grouping settled.
+    n_observed : int
+        Observed (frame, point) entries.
+    frame_counts : ndarray of shape (F, 1), float, or None
+        Observed points per frame; None when all are observed.
+    """
+
+    params: SolverParams
+    local: bool
+    adaptive: bool
+    refine_rotations: bool
+    prior: temporal_prior.TemporalPrior | None
+    exact_prior: bool
+    kept_values: int
+    min_size: int
+    settled_moves: int
+    n_observed: int
+    frame_counts: np.ndarray | None
+
+
+def loop_settings(
+    params: SolverParams,
+    n_frames: int,
+    n_points: int,
+    observed: np.ndarray | None,
+    refine_rotations: bool,
+) -> LoopSettings:
+    """The :class:`LoopSettings` of a solve."""
+    local = params.method != "bmm" and params.n_groups > 1
+    adaptive = local and params.grouping == "adaptive"
+    prior = (
+        temporal_prior.temporal_prior(n_frames, params.smoothness) if params.smoothness else None
+    )
+    return LoopSettings(
+        params=params,
+        local=local,
+        adaptive=adaptive,
+        refine_rotations=refine_rotations,
+        prior=prior,
+        exact_prior=prior is not None and refine_rotations,
+        kept_values=1 if params.free_mean_shape else 0,
+        min_size=min_group_size(params.subspace_dim),
+        settled_moves=int(SETTLED_MOVE_FRACTION * n_points),
+        n_observed=n_frames * n_points if observed is None else int(observed.sum()),
+        frame_counts=None if observed is None else observed.sum(axis=1)[:, None].astype(float),
+    )

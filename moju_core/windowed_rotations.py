@@ -152,9 +152,7 @@ def best_windowed_rotations(gram: RowGram, rigid: np.ndarray) -> tuple[np.ndarra
     """
     n_frames = gram.n_frames
     candidates = [
-        (windowed_rotations(gram, length), length)
-        for length in WINDOW_LENGTHS
-        if length < n_frames
+        (windowed_rotations(gram, length), length) for length in WINDOW_LENGTHS if length < n_frames
     ] + [(rigid, n_frames)]
     best: tuple[np.ndarray, int, float] | None = None
     for rotations, length in candidates:
