@@ -37,7 +37,9 @@ The package's modules: :mod:`~moju_core.datasets.sequence` (the :class:`Sequence
 :mod:`~moju_core.datasets.faces`, :mod:`~moju_core.datasets.sheets` (paper, cloth) and
 :mod:`~moju_core.datasets.hard` (the generators), :mod:`~moju_core.datasets.registry`
 (:func:`make_sequence` by name), :mod:`~moju_core.datasets.noise` and
-:mod:`~moju_core.datasets.occlusion`. Import the public names from ``moju_core.datasets``.
+:mod:`~moju_core.datasets.occlusion`, and the surface building blocks they share
+(:mod:`~moju_core.datasets.surfaces`: point grids with their meshes, bumps, bending). Import
+the public names from ``moju_core.datasets``.
 """
 
 from moju_core.datasets._camera_paths import CAMERA_MOTIONS, CameraMotion, RotationFrequency

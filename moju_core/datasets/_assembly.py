@@ -9,8 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from moju_core.datasets._surface import parameter_grid
 from moju_core.datasets.sequence import Sequence
+from moju_core.datasets.surfaces import parameter_grid
 
 # Independent random streams per aspect, so that e.g. the camera path does not change when a
 # deformation parameter draws one more number.
@@ -77,7 +77,7 @@ class SheetStart:
         translations (:func:`streams`); :meth:`finish` uses the last.
     u, v : ndarray of shape (P,), float64
         Grid coordinates of the points in [0, 1], u along the sheet's long side
-        (:func:`~moju_core.datasets._surface.parameter_grid`).
+        (:func:`~moju_core.datasets.surfaces.parameter_grid`).
     faces : ndarray of shape (M, 3), int64
         The grid's triangles.
     times : ndarray of shape (F, 1), float64

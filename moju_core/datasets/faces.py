@@ -8,14 +8,14 @@ import numpy as np
 
 from moju_core.datasets._assembly import check_sizes, finish, streams
 from moju_core.datasets._camera_paths import RotationFrequency, camera_rotations
-from moju_core.datasets._surface import (
+from moju_core.datasets.sequence import Sequence
+from moju_core.datasets.surfaces import (
     gaussian,
     parameter_grid,
     ramp_colors,
     sigmoid,
     smooth_signals,
 )
-from moju_core.datasets.sequence import Sequence
 
 
 def _face_surface(n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -8,14 +8,14 @@ import numpy as np
 
 from moju_core.datasets._assembly import sheet_start
 from moju_core.datasets._camera_paths import CAMERA_MOTIONS, CameraMotion, hard_camera
-from moju_core.datasets._surface import (
+from moju_core.datasets.sequence import Sequence
+from moju_core.datasets.surfaces import (
     bend_sheet,
     cumulative_trapezoid,
     gaussian,
     ramp_colors,
     sigmoid,
 )
-from moju_core.datasets.sequence import Sequence
 
 
 def flag_sequence(

@@ -6,13 +6,13 @@ import numpy as np
 
 from moju_core.datasets._assembly import sheet_start
 from moju_core.datasets._camera_paths import SHEET_CAMERA_RANGE_DEG, camera_rotations
-from moju_core.datasets._surface import (
+from moju_core.datasets.sequence import Sequence
+from moju_core.datasets.surfaces import (
     bend_sheet,
     cumulative_trapezoid,
     ramp_colors,
     sigmoid,
 )
-from moju_core.datasets.sequence import Sequence
 
 
 def paper_sequence(n_frames: int = 60, n_points: int = 10_000, seed: int = 0) -> Sequence:

@@ -20,7 +20,7 @@ from moju_core.datasets import (
     paper_sequence,
     roll_sequence,
 )
-from moju_core.datasets._surface import parameter_grid
+from moju_core.datasets.surfaces import parameter_grid
 from moju_core.metrics import e3d, rigid_approximation
 
 SMALL = 600  # points per sequence where the full density is not what is being tested
