@@ -266,7 +266,7 @@ class GroupCoefficients:
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """What the parameters and the input fix for the whole loop (derived once by :func:`run`).
+    """What the parameters and the input fix for the whole loop (:func:`loop_settings`).
 
     Attributes
     ----------
@@ -319,7 +319,19 @@ def loop_settings(
     observed: np.ndarray | None,
     refine_rotations: bool,
 ) -> LoopSettings:
-    """The :class:`LoopSettings` of a solve."""
+    """The :class:`LoopSettings` of a solve, derived once before the first iteration.
+
+    Parameters
+    ----------
+    params : SolverParams
+        Fully resolved parameters (:func:`moju_core.defaults.resolve`).
+    n_frames, n_points : int
+        F and P.
+    observed : ndarray of shape (F, P), bool, or None
+        Where the points are observed; None: everywhere.
+    refine_rotations : bool
+        Whether the loop re-fits the rotations to the shapes.
+    """
     local = params.method != "bmm" and params.n_groups > 1
     adaptive = local and params.grouping == "adaptive"
     prior = (
