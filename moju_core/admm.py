@@ -14,7 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from moju_core import camera, clustering, grassmann, jump, lrr, temporal_prior
+from moju_core import clustering, grassmann, jump, lrr, temporal_prior
+from moju_core.cameras import projection as camera
+from moju_core.cameras.refinement import fit_rotations_to_shapes
 from moju_core.defaults import (
     GAP_PRECISION,
     ROTATION_REFINE_RHO,
@@ -23,7 +25,6 @@ from moju_core.defaults import (
     min_group_size,
 )
 from moju_core.params import SolverParams
-from moju_core.rotations import fit_rotations_to_shapes
 
 #: Called once per iteration with (iteration, gap, rho); returning True stops the loop.
 IterationHook = Callable[[int, float, float], bool]
@@ -91,7 +92,7 @@ def run(
     refine_rotations : bool, default False
         Refine the rotations with the shapes: while ``rho < ROTATION_REFINE_RHO``, every
         iteration fits them to the current low-rank shapes ``S#``
-        (:func:`moju_core.rotations.fit_rotations_to_shapes`), an alternating minimisation
+        (:func:`moju_core.cameras.refinement.fit_rotations_to_shapes`), an alternating minimisation
         of the data term over R. For approximate rotations (the windowed estimate).
     observed : ndarray of shape (F, P), bool, optional
         Where the points are observed; the data term runs over these entries only (the

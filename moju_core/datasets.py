@@ -41,6 +41,8 @@ from typing import Literal
 
 import numpy as np
 
+from moju_core.cameras import projection
+
 RotationFrequency = Literal["low", "high"]
 
 SEQUENCE_NAMES: tuple[str, ...] = ("face1", "face2", "face3", "face4", "paper", "cloth")
@@ -277,14 +279,6 @@ def _image_translations(n_frames: int, extent: float, rng: np.random.Generator) 
     return offset + 0.05 * extent * np.sin(2.0 * np.pi * times + phases)
 
 
-def _project(rotations: np.ndarray, shapes: np.ndarray, translations: np.ndarray) -> np.ndarray:
-    """Orthographic projection ``W_f = R_f S_f^T + t_f`` stacked to (2F, P)."""
-    n_frames, n_points = shapes.shape[:2]
-    image = rotations @ shapes.transpose(0, 2, 1)
-    image += translations[:, :, None]
-    return image.reshape(2 * n_frames, n_points)
-
-
 def _ramp_colors(values: np.ndarray, low: tuple[int, int, int], high: tuple[int, int, int]):
     """Linear colour ramp between two RGB colours over the range of ``values``, (P, 3) uint8."""
     span = np.ptp(values)
@@ -306,7 +300,9 @@ def _finish(
     shapes -= shapes.mean(axis=1, keepdims=True)
     rotations = np.ascontiguousarray(camera[:, :2, :])
     translations = _image_translations(shapes.shape[0], extent, translation_rng)
-    W = _project(rotations, shapes, translations)
+    # Orthographic projection W_f = R_f S_f^T + t_f, stacked to (2F, P).
+    image = projection.project(rotations, shapes.transpose(0, 2, 1)) + translations[:, :, None]
+    W = image.reshape(2 * shapes.shape[0], shapes.shape[1])
     return Sequence(name, W, rotations, shapes, translations, faces, colors)
 
 
