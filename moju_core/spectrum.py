@@ -45,7 +45,7 @@ def spectrum(W: np.ndarray) -> Spectrum:
     With 2F <= P (dense tracking) the 2F x 2F matrix ``W W^T`` costs one product over the
     points, against a full SVD of the 2F x P matrix. Its eigenvalues carry an absolute error
     of about ``eps * s_1^2``, so singular values below ``~1e-8 s_1`` are not resolved; the
-    rank rules in this module never rely on them (see ``RANK_FLOOR``).
+    rank rules here and in :mod:`moju_core.cameras` never rely on them (see ``RANK_FLOOR``).
 
     Parameters
     ----------
@@ -85,7 +85,8 @@ def _gavish_donoho_threshold(s: np.ndarray, aspect: float) -> float:
 
 
 def significant_rank(s: np.ndarray, shape: tuple[int, int]) -> int:
-    """Number of singular values of W above the noise (step 1 of :func:`choose_n_bases`).
+    """Number of singular values of W above the noise (step 1 of
+    :func:`moju_core.cameras.bases.choose_n_bases`).
 
     Parameters
     ----------
@@ -124,8 +125,8 @@ def noise_variance(singular_values: np.ndarray, shape: tuple[int, int]) -> float
     """Variance of white noise in the entries of a matrix, from its singular values.
 
     The singular values above the Gavish-Donoho threshold are signal (the rule of
-    :func:`choose_n_bases`); the energy of the others is spread as white noise would spread
-    it (see :func:`noise_variance_beyond`).
+    :func:`moju_core.cameras.bases.choose_n_bases`); the energy of the others is spread as
+    white noise would spread it (see :func:`noise_variance_beyond`).
 
     Parameters
     ----------

@@ -355,12 +355,13 @@ def intersection_rotations(W: np.ndarray, n_bases: int, *, seed: int = 0) -> np.
        ``G_k = V_3 Lambda_3^{1/2}`` from its top three eigenpairs, and each block
        ``Pi_hat_f G_k = c_fk R_f`` projected to the nearest matrix with orthonormal rows
        (which divides out ``|c_fk|``) gives Dai et al.'s rotations.
-    4. *Joint fit of the exact triples* (this project's addition, :func:`fit_triples`).
+    4. *Joint fit of the exact triples* (this project's addition,
+       :func:`moju_core.cameras.triples.fit_triples`).
        The rotations are refined so that k column triples of the motion factor, not one,
-       are scaled copies of the same ``R_f`` (:class:`_MotionFit`), for k = 1, 2, ... in
-       turn, each fit continuing from the previous one (the first from step 3), with a
-       multi-start search (random 3-dim subspaces of Q's top eigenvectors, seeded by
-       ``seed``, and the rigid estimate) when that fit is not already exact. The fit works
+       are scaled copies of the same ``R_f`` (:class:`moju_core.cameras.triples._MotionFit`),
+       for k = 1, 2, ... in turn, each fit continuing from the previous one (the first from
+       step 3), with a multi-start search (random 3-dim subspaces of Q's top eigenvectors,
+       seeded by ``seed``, and the rigid estimate) when that fit is not already exact. The fit works
        in every direction of W above the noise (at least 3K of them), and k grows only
        while the k-th triple fits *exactly*, i.e. with the misfit that the noise of W
        explains (or at rounding level without noise). Dai et al. stop at step 3, which
@@ -375,15 +376,16 @@ def intersection_rotations(W: np.ndarray, n_bases: int, *, seed: int = 0) -> np.
     5. The sign of ``c_fk``, which the model cannot see, is resolved by assuming a dominant
        shape (:func:`_synchronise_signs`).
 
-    Measured (tests/moju_core/test_rotations.py and the project's sequences): below 1e-4
+    Measured (tests/moju_core/cameras/test_intersection.py and the project's sequences): below 1e-4
     degrees without noise and 0.2-1.0 degrees with 1 % noise on exactly low-rank data for
     K = 2..4; below 0.01 degrees on the noise-free synthetic faces of 99 frames and about
     1.2 degrees on the 10-frame face1, where 10 frames leave the rotations partly
     undetermined.
 
-    K = 1 is the rigid case and is delegated to :func:`rigid_rotations`. A K above what W
-    supports (3K above its rank, or above the number of singular values that stand out of
-    the noise by the rule of :func:`choose_n_bases`) is lowered with a ``RuntimeWarning``.
+    K = 1 is the rigid case and is delegated to :func:`moju_core.cameras.rigid.rigid_rotations`.
+    A K above what W supports (3K above its rank, or above the number of singular values
+    that stand out of the noise by the rule of :func:`moju_core.cameras.bases.choose_n_bases`)
+    is lowered with a ``RuntimeWarning``.
     When the relaxation is degenerate (Q of rank below 3, e.g. a camera that never tilts),
     a ``RuntimeWarning`` is issued and K - 1 bases are tried, down to the rigid method.
     When not even one triple fits within the noise (the deformation does not follow the

@@ -78,7 +78,7 @@ class _MotionFit:
     those leave the rotations free to first order along ``G_k + sum_j G_j omega_j``
     (omega_j skew), so that even 0.01 % noise gave 5-10 degree errors for K = 3, 4 in our
     measurements. The eigenvalues of H beyond the k-th tell how well further triples would
-    fit (see :func:`_intersection_with`).
+    fit (see :func:`fit_triples`).
     """
 
     def __init__(self, Pi: np.ndarray, n_triples: int) -> None:
@@ -332,7 +332,8 @@ def rotations_from_triples(triples: np.ndarray, motion: np.ndarray, sweeps: int 
     ``sum_k <Pi_f G_k, R_f>^2`` (the misfit of :class:`_MotionFit` for fixed triples), found
     by the fixed-point iteration ``R_f <- polar(sum_k <Pi_f G_k, R_f> Pi_f G_k)`` from the
     polar factor of the frame's strongest block; each sweep increases the objective. O(F k n)
-    in all; the sign of each frame is left to :func:`_synchronise_signs`.
+    in all; the sign of each frame is left to
+    :func:`moju_core.cameras.intersection._synchronise_signs`.
 
     Parameters
     ----------

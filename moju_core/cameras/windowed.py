@@ -9,7 +9,8 @@ Procrustes over their rotation rows) chains the windows into rotations for the w
 every frame's rotation is the average of its windows' (projected back to orthonormal rows).
 The chain follows the object's mean orientation, which a deforming object changes; those
 rotation errors are largely of the kind a shape can absorb, and the ADMM loop refines these
-rotations together with the shapes (:func:`moju_core.cameras.refinement.fit_rotations_to_shapes`).
+rotations together with the shapes
+(:func:`moju_core.cameras.refinement.fit_rotations_to_shapes`).
 Dai et al.'s intersection method instead needs the shapes to be a combination of a few
 shape bases, which a rolling sheet or a travelling wave is not with only tens of frames.
 
