@@ -24,10 +24,10 @@ __all__ = [
     "spectrum",
 ]
 
-# Singular values of W below this fraction of the largest are treated as exact zeros. The
-# Gram-matrix route computes s_i^2 with an absolute error of about eps * s_1^2, so singular
-# values are only resolved down to about sqrt(eps) * s_1 ~ 1.5e-8 * s_1; 1e-6 stays clear of
-# that floor while being far below any deformation that matters for the rotations.
+#: Singular values of W below this fraction of the largest are treated as exact zeros. The
+#: Gram-matrix route computes s_i^2 with an absolute error of about eps * s_1^2, so singular
+#: values are only resolved down to about sqrt(eps) * s_1 ~ 1.5e-8 * s_1; 1e-6 stays clear of
+#: that floor while being far below any deformation that matters for the rotations.
 RANK_FLOOR = 1e-6
 
 
@@ -114,6 +114,20 @@ def noise_variance_beyond(s: np.ndarray, shape: tuple[int, int], rank: int) -> f
     ``m - r`` trailing directions of an m x M matrix (m <= M) whose signal has rank r. Without
     noise the result is a rounding error (or, for a W that is only approximately of rank r,
     the energy of the neglected directions spread the same way).
+
+    Parameters
+    ----------
+    s : ndarray of shape (min(shape),)
+        Singular values of W, decreasing.
+    shape : (int, int)
+        Shape of W.
+    rank : int
+        Rank r of the signal: the singular values from the (r + 1)-th on are noise.
+
+    Returns
+    -------
+    float
+        sigma^2, in squared units of the entries of W (0 when ``rank >= min(shape)``).
     """
     m, M = min(shape), max(shape)
     if rank >= m:

@@ -41,7 +41,23 @@ def min_frames_for_bases(n_bases: int) -> int:
 
 
 def check_measurements(W: np.ndarray) -> np.ndarray:
-    """Return W as a float64 array of shape (2F, P) or raise MeasurementError."""
+    """W as a float64 array, checked for the camera estimators.
+
+    Parameters
+    ----------
+    W : array_like of shape (2F, P)
+        Centred measurements.
+
+    Returns
+    -------
+    ndarray of shape (2F, P), float64
+
+    Raises
+    ------
+    MeasurementError
+        If W is not 2-D, has an odd number of rows, holds NaN or infinite values, or has
+        fewer than 3 frames.
+    """
     W = np.asarray(W, dtype=np.float64)
     if W.ndim != 2:
         raise MeasurementError(
@@ -62,7 +78,23 @@ def check_measurements(W: np.ndarray) -> np.ndarray:
 
 
 def check_n_bases(n_bases: int, n_frames: int, n_points: int) -> None:
-    """Raise MeasurementError when W is too small for a rank-3K factorisation."""
+    """Check that F frames of P points can determine the rotations with K shape bases.
+
+    Parameters
+    ----------
+    n_bases : int
+        Number of shape bases K.
+    n_frames, n_points : int
+        F and P of the measurements.
+
+    Raises
+    ------
+    ValueError
+        If ``n_bases`` is not a positive integer.
+    MeasurementError
+        If there are fewer than :func:`min_frames_for_bases` frames, or fewer than 3K + 1
+        points (a rank-3K factorisation of centred columns).
+    """
     if isinstance(n_bases, bool) or not isinstance(n_bases, (int, np.integer)) or n_bases < 1:
         raise ValueError(f"n_bases must be a positive integer, got {n_bases!r}")
     needed_frames = min_frames_for_bases(n_bases)

@@ -46,9 +46,9 @@ _ADMM_TOL = 1e-6
 _ADMM_MAX_ITER = 2000
 # Largest number of directions of W the joint fit works in (H is 3n x 3n).
 _MAX_FIT_RANK = 30
-# Multi-start search: random 3-dim subspaces of the top _SUBSPACE_WIDTH eigenvectors of the
-# relaxation's Q (besides its top-3 factor, the previous number of triples' fit and the
-# rigid estimate), and the looser tolerance and budget of each search run.
+# Starts of the joint fit's multi-start search: random 3-dim subspaces of the top
+# _SUBSPACE_WIDTH eigenvectors of the relaxation's Q (besides its top-3 factor, the previous
+# number of triples' fit and the rigid estimate).
 _SUBSPACE_STARTS = 6
 _SUBSPACE_WIDTH = 6
 # Q from the convex relaxation must have a clear third eigenvalue: lambda_3 >= this *
@@ -358,7 +358,7 @@ def intersection_rotations(W: np.ndarray, n_bases: int, *, seed: int = 0) -> np.
     4. *Joint fit of the exact triples* (this project's addition,
        :func:`moju_core.cameras.triples.fit_triples`).
        The rotations are refined so that k column triples of the motion factor, not one,
-       are scaled copies of the same ``R_f`` (:class:`moju_core.cameras.triples._MotionFit`),
+       are scaled copies of the same ``R_f`` (:class:`moju_core.cameras.triples.MotionFit`),
        for k = 1, 2, ... in turn, each fit continuing from the previous one (the first from
        step 3), with a multi-start search (random 3-dim subspaces of Q's top eigenvectors,
        seeded by ``seed``, and the rigid estimate) when that fit is not already exact. The fit works

@@ -3,7 +3,7 @@
 Dai et al.'s intersection method (:mod:`moju_core.cameras.intersection`) finds one corrective
 column triple ``G_k`` of the motion factor, which fixes the rotations only to second order.
 Here the rotations are refined so that several triples are scaled copies of the same
-rotations, ``Pi_f G_k = c_fk R_f`` (:class:`_MotionFit`), by L-BFGS on SO(3)
+rotations, ``Pi_f G_k = c_fk R_f`` (:class:`MotionFit`), by L-BFGS on SO(3)
 (:func:`_refine_rotations`). How many triples is decided by the data, not by K
 (:func:`fit_triples`): triples are added one at a time as long as the new one fits
 *exactly*, with no more misfit than the noise of W explains. Exactly low-rank sequences (K
@@ -24,7 +24,7 @@ from scipy.optimize import minimize
 from moju_core.cameras.refinement import GENERATORS, exp_so3, project_to_stiefel
 from moju_core.spectrum import noise_variance_beyond
 
-__all__ = ["fit_frames", "fit_triples", "rotations_from_triples"]
+__all__ = ["MotionFit", "fit_frames", "fit_triples", "rotations_from_triples"]
 
 # Longer sequences fit the corrective triples on this many frames spread evenly over the
 # sequence (the triples do not depend on the frame), and every frame's rotation then follows
@@ -35,6 +35,7 @@ _MAX_FIT_FRAMES = 100
 # the misfit at which to stop, and iteration budget (tens to hundreds are used).
 _REFINE_TOL = 1e-10
 _REFINE_MAX_ITER = 1000
+# The looser tolerance and budget of each run of the multi-start search (fit_triples).
 _SEARCH_TOL = 1e-6
 _SEARCH_MAX_ITER = 300
 # A fitted triple is "exact" when its misfit (with the singular values as weights, so that
@@ -62,7 +63,7 @@ _LINEAGE_EXACT = 1e-4
 _LINEAGE_MARGIN = 0.9
 
 
-class _MotionFit:
+class MotionFit:
     """Misfit of rotations to a motion factor under the corrective-triple model.
 
     For a motion factor Pi (2F x n) the model says ``Pi_f G_k = c_fk R_f`` for k column
@@ -138,9 +139,9 @@ class _MotionFit:
 
 
 def _refine_rotations(
-    fit: _MotionFit, R: np.ndarray, *, tol: float, max_iter: int
+    fit: MotionFit, R: np.ndarray, *, tol: float, max_iter: int
 ) -> tuple[np.ndarray, float, np.ndarray]:
-    """Minimise the misfit of :class:`_MotionFit` over the rotations, starting from R.
+    """Minimise the misfit of :class:`MotionFit` over the rotations, starting from R.
 
     The rotations are parametrised around the start as ``R_f exp(skew(w_f))`` (full 3 x 3
     rotations completed by the cross product, of which the first two rows are used), and
@@ -151,7 +152,7 @@ def _refine_rotations(
 
     Parameters
     ----------
-    fit : _MotionFit
+    fit : MotionFit
     R : ndarray of shape (F, 2, 3)
         Starting rotations.
     tol : float
@@ -209,11 +210,11 @@ def fit_triples(
     s: np.ndarray,
     max_triples: int,
     starts: list[np.ndarray],
-) -> tuple[np.ndarray, int, float]:
+) -> tuple[np.ndarray, int, float, MotionFit, np.ndarray]:
     """Joint fit of as many corrective triples as the data hold exactly.
 
     For k = 1, 2, ..., ``max_triples`` the rotations are fitted to k triples of the motion
-    factor ``U S^(1/2)`` (:class:`_MotionFit`), continuing from the fit with k - 1 triples
+    factor ``U S^(1/2)`` (:class:`MotionFit`), continuing from the fit with k - 1 triples
     (the first from Dai et al.'s estimate, ``starts[0]``). The k-th triple is then tested:
     exact when its misfit under ``U S`` is at most ``_EXACT_NOISE_RATIO`` times what the noise
     of W explains, or at rounding level. If it is not, every start is searched too (unless
@@ -242,7 +243,7 @@ def fit_triples(
         the best fit of one triple).
     excess : float
         Misfit of the first inexact triple over the noise level (huge without noise).
-    fit : _MotionFit
+    fit : MotionFit
         The last fit (of the rows of U given).
     weights : ndarray of shape (n,)
         The column weights of its motion factor, ``U * weights``.
@@ -265,11 +266,11 @@ def fit_triples(
     def is_exact(rotations: np.ndarray, eigenvalues: np.ndarray, k: int) -> tuple[bool, float]:
         if eigenvalues[k - 1] <= _EXACT_RELATIVE * eigenvalues[-1]:
             return True, 0.0
-        excess = _MotionFit(test_motion, k).evaluate(rotations)[2][k - 1] / max(noise_floor, 1e-300)
+        excess = MotionFit(test_motion, k).evaluate(rotations)[2][k - 1] / max(noise_floor, 1e-300)
         return excess <= _EXACT_NOISE_RATIO, excess
 
     def search(
-        fit: _MotionFit, rotations: np.ndarray, misfit: float, eigenvalues: np.ndarray
+        fit: MotionFit, rotations: np.ndarray, misfit: float, eigenvalues: np.ndarray
     ) -> tuple[np.ndarray, float, np.ndarray]:
         """Replace a fit by the best fit from all starts if that is clearly lower."""
         candidates = [
@@ -284,7 +285,7 @@ def fit_triples(
     chosen = None  # (fit, k, searched, rotations, misfit, eigenvalues) of the last exact k
     n_exact, excess, previous = 0, math.inf, starts[0]
     for k in range(1, max_triples + 1):
-        fit = _MotionFit(motion, k)
+        fit = MotionFit(motion, k)
         rotations, misfit, eigenvalues = _refine_rotations(
             fit, previous, tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER
         )
@@ -311,7 +312,7 @@ def fit_triples(
     # to 17 degrees on face4 with 1 % noise).
     weights = np.sqrt(s[:n] / s[0])
     if k > 1:
-        fit, weights = _MotionFit(test_motion, k), s[:n] / s[0]
+        fit, weights = MotionFit(test_motion, k), s[:n] / s[0]
         rotations, _, _ = _refine_rotations(
             fit, rotations, tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER
         )
@@ -329,7 +330,7 @@ def rotations_from_triples(triples: np.ndarray, motion: np.ndarray, sweeps: int 
     """Every frame's rotation from corrective triples fitted on a subset of the frames.
 
     The triples ``G_k`` do not depend on the frame: frame f's rotation maximises
-    ``sum_k <Pi_f G_k, R_f>^2`` (the misfit of :class:`_MotionFit` for fixed triples), found
+    ``sum_k <Pi_f G_k, R_f>^2`` (the misfit of :class:`MotionFit` for fixed triples), found
     by the fixed-point iteration ``R_f <- polar(sum_k <Pi_f G_k, R_f> Pi_f G_k)`` from the
     polar factor of the frame's strongest block; each sweep increases the objective. O(F k n)
     in all; the sign of each frame is left to
@@ -338,7 +339,7 @@ def rotations_from_triples(triples: np.ndarray, motion: np.ndarray, sweeps: int 
     Parameters
     ----------
     triples : ndarray of shape (n, 3, k)
-        The fitted triples (:meth:`_MotionFit.triples`).
+        The fitted triples (:meth:`MotionFit.triples`).
     motion : ndarray of shape (2F, n)
         The motion factor of all frames, weighted as the fit's.
     sweeps : int
