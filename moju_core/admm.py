@@ -32,7 +32,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from moju_core import camera, clustering, grouping_steps, lrr, temporal_prior
+from moju_core import clustering, grouping_steps, lrr, temporal_prior
+from moju_core.cameras import projection as camera
+from moju_core.cameras.refinement import fit_rotations_to_shapes
 from moju_core.defaults import ROTATION_REFINE_RHO
 from moju_core.loop_state import (
     GroupCoefficients,
@@ -43,7 +45,6 @@ from moju_core.loop_state import (
     permute_points,
 )
 from moju_core.params import SolverParams
-from moju_core.rotations import fit_rotations_to_shapes
 from moju_core.stopping import StoppingTest
 
 #: Called once per iteration with (iteration, gap, rho); returning True stops the loop.
@@ -110,7 +111,7 @@ def run(
     refine_rotations : bool, default False
         Refine the rotations with the shapes: while ``rho < ROTATION_REFINE_RHO``, every
         iteration fits them to the current low-rank shapes ``S#``
-        (:func:`moju_core.rotations.fit_rotations_to_shapes`), an alternating minimisation
+        (:func:`moju_core.cameras.refinement.fit_rotations_to_shapes`), an alternating minimisation
         of the data term over R. For approximate rotations (the windowed estimate).
     observed : ndarray of shape (F, P), bool, optional
         Where the points are observed; the data term runs over these entries only (the
@@ -228,11 +229,11 @@ def iterate(
 def shape_update(state: LoopState, settings: LoopSettings) -> None:
     """Step 1, the S-update: data term plus the coupling ``rho/2 ||S - (S# + L1/rho)||^2``.
 
-    Per frame and point a 3 x 3 solve (:func:`moju_core.camera.data_step`), over the observed
-    entries only; or, with the exact temporal prior, a banded solve over the frames
+    Per frame and point a 3 x 3 solve
+    (:func:`moju_core.cameras.projection.data_step`), over the observed entries only; or, with the exact temporal prior, a banded solve over the frames
     (:func:`moju_core.temporal_prior.smooth_data_step`), which needs every entry: the
     unobserved ones then take the current shapes' projection (a majoriser of the masked data
-    term, :func:`moju_core.camera.fill_unobserved`). In place on ``state.shapes``.
+    term, :func:`moju_core.cameras.projection.fill_unobserved`). In place on ``state.shapes``.
     """
     n_frames, n_points = state.n_frames, state.n_points
     np.add(state.sharp, state.scaled, out=state.work)
@@ -260,8 +261,8 @@ def shape_update(state: LoopState, settings: LoopSettings) -> None:
 def refit_rotations(state: LoopState) -> None:
     """Alternate: the rotations that best project the current low-rank shapes S#.
 
-    :func:`moju_core.rotations.fit_rotations_to_shapes` (hidden entries of the tracks at the
-    shapes' projection); the data term's right-hand side and viewing directions follow.
+    :func:`moju_core.cameras.refinement.fit_rotations_to_shapes` (hidden entries of the tracks
+    at the shapes' projection); the data term's right-hand side and viewing directions follow.
     """
     low_rank = state.sharp.reshape(state.n_frames, 3, state.n_points)
     seen = (

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from moju_core import camera, jump, lrr, temporal_prior
+from moju_core import jump, lrr, temporal_prior
+from moju_core.cameras import projection as camera
 from moju_core.defaults import SETTLED_MOVE_FRACTION, min_group_size
 from moju_core.params import SolverParams
 

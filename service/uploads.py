@@ -25,10 +25,10 @@ from starlette.formparsers import MultiPartException, MultiPartParser
 from starlette.requests import Request
 
 from moju_core import defaults
+from moju_core.cameras.bases import min_frames_for_bases
 from moju_core.errors import MeasurementError, MeasurementTooLarge
 from moju_core.io import Measurements, read_measurements
 from moju_core.params import SolverParams, rotation_method
-from moju_core.rotations import min_frames_for_bases
 from moju_core.validation import estimate_memory_bytes, tracks_to_W
 from service.errors import BodyTimeout, InvalidInput, UnsupportedMediaType, UploadTooLarge
 from service.schemas import InputSummary, TracksBody

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from moju_core.cameras import projection
 from moju_core.datasets.sequence import Sequence
 from moju_core.datasets.surfaces import parameter_grid
 
@@ -33,14 +34,6 @@ def _image_translations(n_frames: int, extent: float, rng: np.random.Generator) 
     return offset + 0.05 * extent * np.sin(2.0 * np.pi * times + phases)
 
 
-def _project(rotations: np.ndarray, shapes: np.ndarray, translations: np.ndarray) -> np.ndarray:
-    """Orthographic projection ``W_f = R_f S_f^T + t_f`` stacked to (2F, P)."""
-    n_frames, n_points = shapes.shape[:2]
-    image = rotations @ shapes.transpose(0, 2, 1)
-    image += translations[:, :, None]
-    return image.reshape(2 * n_frames, n_points)
-
-
 def finish(
     name: str,
     shapes: np.ndarray,
@@ -54,7 +47,9 @@ def finish(
     shapes -= shapes.mean(axis=1, keepdims=True)
     rotations = np.ascontiguousarray(camera[:, :2, :])
     translations = _image_translations(shapes.shape[0], extent, translation_rng)
-    W = _project(rotations, shapes, translations)
+    # Orthographic projection W_f = R_f S_f^T + t_f, stacked to (2F, P).
+    image = projection.project(rotations, shapes.transpose(0, 2, 1)) + translations[:, :, None]
+    W = image.reshape(2 * shapes.shape[0], shapes.shape[1])
     return Sequence(name, W, rotations, shapes, translations, faces, colors)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.testing import assert_array_equal
 
-from moju_core import camera
+from moju_core.cameras import projection as camera
 from moju_core.datasets import make_sequence
 from moju_core.loop_state import group_bounds, initial_state, permute_points
 
