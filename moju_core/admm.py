@@ -229,9 +229,9 @@ def iterate(
 def shape_update(state: LoopState, settings: LoopSettings) -> None:
     """Step 1, the S-update: data term plus the coupling ``rho/2 ||S - (S# + L1/rho)||^2``.
 
-    Per frame and point a 3 x 3 solve
-    (:func:`moju_core.cameras.projection.data_step`), over the observed entries only; or, with the exact temporal prior, a banded solve over the frames
-    (:func:`moju_core.temporal_prior.smooth_data_step`), which needs every entry: the
+    Per frame and point a 3 x 3 solve (:func:`moju_core.cameras.projection.data_step`),
+    over the observed entries only; or, with the exact temporal prior, a banded solve over
+    the frames (:func:`moju_core.temporal_prior.smooth_data_step`), which needs every entry: the
     unobserved ones then take the current shapes' projection (a majoriser of the masked data
     term, :func:`moju_core.cameras.projection.fill_unobserved`). In place on ``state.shapes``.
     """
