@@ -11,7 +11,6 @@ from threadpoolctl import threadpool_limits
 from moju_core import (
     __version__,
     admm,
-    camera,
     cameras,
     clustering,
     defaults,
@@ -20,12 +19,13 @@ from moju_core import (
     missing,
     pta,
 )
+from moju_core.cameras import projection
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams, rotation_method
 from moju_core.preprocessing import normalise
 from moju_core.result import Progress, Result
-from moju_core.rotations import noise_variance, significant_rank, spectrum
 from moju_core.smoothness import choose_smoothness
+from moju_core.spectrum import noise_variance, significant_rank, spectrum
 from moju_core.validation import check_observations, check_rotations
 
 #: ``callback(progress) -> bool | None``; returning True asks the solver to stop (it then
@@ -301,7 +301,7 @@ def _trajectory_basis(
     """
     n_frames, _, n_points = tracks.shape
     shapes, diagnostics = pta.solve(tracks, rotations, params.trajectory_bases, observed)
-    residual = camera.project(rotations, shapes) - tracks
+    residual = projection.project(rotations, shapes) - tracks
     if observed is not None:
         residual = residual[np.broadcast_to(observed[:, None, :], residual.shape)]
     nuclear = float(np.linalg.svd(shapes.reshape(n_frames, 3 * n_points), compute_uv=False).sum())

@@ -350,9 +350,7 @@ def check_observations(
     observed = _visibility_of(W, visibility)
     if observed.all():
         return W, observed
-    check_observation_counts(
-        np.count_nonzero(observed, axis=0), np.count_nonzero(observed, axis=1)
-    )
+    check_observation_counts(np.count_nonzero(observed, axis=0), np.count_nonzero(observed, axis=1))
     return np.where(np.repeat(observed, 2, axis=0), W, 0.0), observed
 
 

@@ -142,11 +142,11 @@ def test_unknown_parameters_are_rejected():
 def test_windowed_rotations_are_refined_with_the_shapes():
     # The windowed estimate follows the sheet's own turning (25 degrees off here); refining it
     # with the shapes in the loop cut e3D from 0.036 to 0.012 (same prior weight).
-    from moju_core import cameras
+    from moju_core.cameras import estimate_cameras
     from moju_core.preprocessing import normalise
 
     sheet = make_sequence("paper", n_points=1000)
-    estimate = cameras.estimate_cameras(normalise(sheet.W)[0], "windowed")
+    estimate = estimate_cameras(normalise(sheet.W)[0], "windowed")
     refined = reconstruct(sheet.W, SolverParams(rotations="windowed", smoothness=10.0))
     fixed = reconstruct(
         sheet.W, SolverParams(rotations="known", smoothness=10.0), rotations=estimate.rotations

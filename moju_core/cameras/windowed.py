@@ -9,25 +9,38 @@ Procrustes over their rotation rows) chains the windows into rotations for the w
 every frame's rotation is the average of its windows' (projected back to orthonormal rows).
 The chain follows the object's mean orientation, which a deforming object changes; those
 rotation errors are largely of the kind a shape can absorb, and the ADMM loop refines these
-rotations together with the shapes (:func:`moju_core.rotations.fit_rotations_to_shapes`).
+rotations together with the shapes
+(:func:`moju_core.cameras.refinement.fit_rotations_to_shapes`).
 Dai et al.'s intersection method instead needs the shapes to be a combination of a few
 shape bases, which a rolling sheet or a travelling wave is not with only tens of frames.
 
 Everything here works on the blocks of the row Gram matrix ``W W^T`` near its diagonal
-(:class:`moju_core.row_gram.RowGram`): they are the windows' Gram matrices, so no pass over the
-P points is made after that one product, and for long sequences only the diagonals within the
-longest window are formed (O(F) memory and time per window length).
+(:class:`RowGram`): they are the windows' Gram matrices, so no pass over the P points is made
+after that one product. For short sequences the whole product is cheaper and is formed; for
+long ones (motion capture: thousands of frames of tens of markers) only the ``2 (2 reach) + 1``
+diagonals within the longest window are computed, O(F P reach) time and O(F reach) memory
+instead of O(F^2 P) and O(F^2).
 
 :func:`short_time_rigidity` measures how well given rotations explain the tracks as rigid over
-every three consecutive frames; :mod:`moju_core.cameras` uses it to choose between estimates.
+every three consecutive frames; :func:`moju_core.cameras.estimate_cameras` uses it to choose
+between estimates.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from moju_core.rotations import project_to_stiefel, rigid_from_factor
-from moju_core.row_gram import RowGram
+from moju_core.cameras.refinement import project_to_stiefel
+from moju_core.cameras.rigid import rigid_from_factor
+
+__all__ = [
+    "RIGIDITY_WINDOW",
+    "WINDOW_LENGTHS",
+    "RowGram",
+    "best_windowed_rotations",
+    "short_time_rigidity",
+    "windowed_rotations",
+]
 
 #: Window lengths (frames) tried by :func:`best_windowed_rotations`, besides the whole
 #: sequence. Short windows see less deformation, long ones more camera motion; which wins
@@ -37,6 +50,55 @@ WINDOW_LENGTHS = (6, 8, 10, 12, 15, 20, 25, 30, 40, 50)
 #: Frames per window of the rigidity measure: the shortest window with more equations
 #: (2 per frame) than a rigid point has unknowns (3).
 RIGIDITY_WINDOW = 3
+
+
+class RowGram:
+    """Entries of ``W W^T`` between frames at most ``reach - 1`` apart.
+
+    Parameters
+    ----------
+    W : ndarray of shape (2F, P)
+        Centred measurements.
+    reach : int
+        Longest window (in frames) whose Gram block will be asked for.
+    """
+
+    def __init__(self, W: np.ndarray, reach: int) -> None:
+        n_rows = W.shape[0]
+        self.n_frames = n_rows // 2
+        self.reach = min(int(reach), self.n_frames)
+        self.total = float(np.vdot(W, W))  # trace of W W^T
+        self.dense: np.ndarray | None = None
+        if self.reach >= self.n_frames // 2:
+            self.dense = W @ W.T
+            return
+        # diagonals[k, i] = (W W^T)[i, i + k] for the 2 reach row offsets needed, zero-padded.
+        width = 2 * self.reach
+        self.diagonals = np.zeros((width, n_rows))
+        for offset in range(width):
+            self.diagonals[offset, : n_rows - offset] = np.einsum(
+                "ip,ip->i", W[: n_rows - offset], W[offset:]
+            )
+
+    def windows(self, length: int) -> np.ndarray:
+        """Gram blocks of every window of ``length`` consecutive frames.
+
+        Returns
+        -------
+        ndarray of shape (F - length + 1, 2 length, 2 length)
+            Entry ``[a]`` is ``W_a W_a^T`` for the rows ``2a .. 2(a + length) - 1``.
+        """
+        if not 1 <= length <= self.reach:
+            raise ValueError(f"window length must be between 1 and {self.reach}, got {length}")
+        n_windows = self.n_frames - length + 1
+        starts = 2 * np.arange(n_windows)
+        local = np.arange(2 * length)
+        if self.dense is not None:
+            rows = starts[:, None] + local
+            return self.dense[rows[:, :, None], rows[:, None, :]]
+        offsets = np.abs(local[:, None] - local[None, :])
+        first = np.minimum(local[:, None], local[None, :])
+        return self.diagonals[offsets[None], starts[:, None, None] + first[None]]
 
 
 def _window_rotations(gram: RowGram, length: int) -> np.ndarray:
@@ -140,7 +202,7 @@ def best_windowed_rotations(gram: RowGram, rigid: np.ndarray) -> tuple[np.ndarra
         ``max(WINDOW_LENGTHS)`` frames.
     rigid : ndarray of shape (F, 2, 3)
         Tomasi-Kanade rotations of the whole sequence
-        (:func:`moju_core.rotations.rigid_rotations`).
+        (:func:`moju_core.cameras.rigid.rigid_rotations`).
 
     Returns
     -------
@@ -152,9 +214,7 @@ def best_windowed_rotations(gram: RowGram, rigid: np.ndarray) -> tuple[np.ndarra
     """
     n_frames = gram.n_frames
     candidates = [
-        (windowed_rotations(gram, length), length)
-        for length in WINDOW_LENGTHS
-        if length < n_frames
+        (windowed_rotations(gram, length), length) for length in WINDOW_LENGTHS if length < n_frames
     ] + [(rigid, n_frames)]
     best: tuple[np.ndarray, int, float] | None = None
     for rotations, length in candidates:

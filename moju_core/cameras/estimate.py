@@ -1,12 +1,12 @@
 """The solver's camera step: one entry point over the rotation estimators, and ``"auto"``.
 
-* ``"intersection"``: Dai, Li and He's method (:func:`moju_core.rotations.intersection_rotations`),
-  the paper's choice. It is exact when the shapes are combinations of a few shape bases, as
-  faces nearly are.
+* ``"intersection"``: Dai, Li and He's method
+  (:func:`moju_core.cameras.intersection.intersection_rotations`), the paper's choice. It is
+  exact when the shapes are combinations of a few shape bases, as faces nearly are.
 * ``"windowed"``: rigid factorisations of short windows of frames, chained
-  (:mod:`moju_core.windowed_rotations`); right when the camera turns fast compared with the
+  (:mod:`moju_core.cameras.windowed`); right when the camera turns fast compared with the
   deformation, whatever the shapes. Approximate: the ADMM loop refines them with the shapes.
-* ``"rigid"``: Tomasi and Kanade.
+* ``"rigid"``: Tomasi and Kanade (:func:`moju_core.cameras.rigid.rigid_rotations`).
 * ``"auto"`` (default): the intersection rotations, unless the windowed ones explain the
   tracks as rigid over every three frames with less than a third of the deformation the
   intersection rotations leave (after removing what the noise of the tracks accounts for).
@@ -25,9 +25,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from moju_core import windowed_rotations
-from moju_core.rotations import choose_n_bases, estimate_rotations, noise_variance, spectrum
-from moju_core.row_gram import RowGram
+from moju_core.cameras.bases import choose_n_bases
+from moju_core.cameras.intersection import intersection_rotations
+from moju_core.cameras.rigid import rigid_rotations
+from moju_core.cameras.windowed import (
+    RIGIDITY_WINDOW,
+    WINDOW_LENGTHS,
+    RowGram,
+    best_windowed_rotations,
+    short_time_rigidity,
+)
+from moju_core.spectrum import noise_variance, spectrum
+
+__all__ = ["AUTO_MARGIN", "CameraEstimate", "estimate_cameras"]
 
 #: ``"auto"`` takes the windowed rotations when their deformation over three frames (beyond
 #: the noise) is below this fraction of the intersection rotations'.
@@ -48,7 +58,7 @@ class CameraEstimate:
     refine : bool
         Whether the ADMM loop should refine the rotations with the shapes (windowed).
     rigidity : dict of str to float
-        :func:`moju_core.windowed_rotations.short_time_rigidity` of the candidates that were
+        :func:`moju_core.cameras.windowed.short_time_rigidity` of the candidates that were
         compared (``"auto"`` only), noise part removed.
     """
 
@@ -87,35 +97,33 @@ def estimate_cameras(
     CameraEstimate
     """
     if method == "rigid":
-        return CameraEstimate(estimate_rotations(W, "rigid"), "rigid")
+        return CameraEstimate(rigid_rotations(W), "rigid")
     if method not in ("auto", "intersection", "windowed"):
         raise ValueError(f"unknown rotation method {method!r}")
     if method == "windowed":
-        gram = RowGram(W, max(windowed_rotations.WINDOW_LENGTHS))
-        rigid = estimate_rotations(W, "rigid")
-        rotations, window, _ = windowed_rotations.best_windowed_rotations(gram, rigid)
+        gram = RowGram(W, max(WINDOW_LENGTHS))
+        rigid = rigid_rotations(W)
+        rotations, window, _ = best_windowed_rotations(gram, rigid)
         return CameraEstimate(rotations, "windowed", window=window, refine=True)
     if n_bases is None:
         n_bases = choose_n_bases(W)
-    if method == "intersection" or W.shape[0] < 2 * windowed_rotations.RIGIDITY_WINDOW:
-        intersection = estimate_rotations(W, "intersection", n_bases=n_bases, seed=seed)
+    if method == "intersection" or W.shape[0] < 2 * RIGIDITY_WINDOW:
+        intersection = intersection_rotations(W, n_bases, seed=seed)
         return CameraEstimate(intersection, "intersection", n_bases=n_bases)
     # The intersection method's warnings (e.g. that no shape basis fits) matter only if its
     # rotations are kept.
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        intersection = estimate_rotations(W, "intersection", n_bases=n_bases, seed=seed)
-    gram = RowGram(W, max(windowed_rotations.WINDOW_LENGTHS))
-    rigid = estimate_rotations(W, "rigid")
-    windowed, window, windowed_rigidity = windowed_rotations.best_windowed_rotations(gram, rigid)
+        intersection = intersection_rotations(W, n_bases, seed=seed)
+    gram = RowGram(W, max(WINDOW_LENGTHS))
+    rigid = rigid_rotations(W)
+    windowed, window, windowed_rigidity = best_windowed_rotations(gram, rigid)
     if singular is None:
         singular = spectrum(W).singular
     # Noise of variance sigma^2 leaves sigma^2 / 2 of every entry's energy unexplained.
     noise_part = 0.5 * noise_variance(singular, W.shape) * W.size / max(gram.total, 1e-300)
     excess = {
-        "intersection": max(
-            windowed_rotations.short_time_rigidity(gram, intersection) - noise_part, 0.0
-        ),
+        "intersection": max(short_time_rigidity(gram, intersection) - noise_part, 0.0),
         "windowed": max(windowed_rigidity - noise_part, 0.0),
     }
     if excess["windowed"] < AUTO_MARGIN * excess["intersection"]:
