@@ -1,6 +1,6 @@
 """End-to-end accuracy of the default solver on the project's six synthetic sequences.
 
-The issue's targets, checked at 2,000 points per sequence (the benchmarks check full size):
+The accuracy goals, checked at 2,000 points per sequence (the benchmarks check full size):
 on the dense faces e3D <= 0.05 with known and <= 0.08 with estimated rotations; on the sheets
 that deform far from any rigid shape (the best rigid reconstruction scores above 0.15) e3D
 well below half of that, and below 0.05, with estimated rotations. Measured at this size with

@@ -230,7 +230,7 @@ def test_worker_memory_setting_and_its_old_name(monkeypatch: pytest.MonkeyPatch)
     monkeypatch.setenv("MOJU_MAX_JOB_MEMORY_BYTES", str(2**30))
     assert Settings().worker_memory_bytes == 2**30  # the old name is still read
     monkeypatch.setenv("MOJU_WORKER_MEMORY_BYTES", str(2**31))
-    assert Settings().worker_memory_bytes == 2**31  # the name wins
+    assert Settings().worker_memory_bytes == 2**31  # the new name wins
     assert Settings(worker_memory_bytes=2**32).worker_memory_bytes == 2**32
 
 
