@@ -482,7 +482,7 @@ def test_reconstruct_hands_the_visibility_to_the_solver(occluded_input, sequence
     output = tmp_path / "result.h5"
     outcome = run(["reconstruct", str(occluded_input), "-o", str(output), "-q"])
     assert outcome.exit_code == 0, outcome.output
-    (W, visibility), = calls
+    ((W, visibility),) = calls
     assert visibility.dtype == bool
     np.testing.assert_array_equal(visibility, occlusion())
     assert np.isnan(W[np.repeat(~occlusion(), 2, axis=0)]).all()
