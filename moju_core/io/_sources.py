@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import IO
 
 from moju_core.errors import MeasurementError, MeasurementTooLarge
+from moju_core.file_types import HEAD_BYTES, array_file_type
 
 PathLike = str | os.PathLike
 Source = str | os.PathLike | IO[bytes]
@@ -23,9 +24,6 @@ Admit = Callable[[int, int], None]
 FORMATS = ("npz", "h5", "csv")
 FORMAT_ALIASES = {"npz": "npz", "h5": "h5", "hdf5": "h5", "csv": "csv"}
 _EXTENSION_FORMATS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv"}
-_ZIP_MAGIC = b"PK\x03\x04"
-HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
-_NPY_MAGIC = b"\x93NUMPY"
 
 
 def display_name(source: Source) -> str:
@@ -57,13 +55,11 @@ def binary_input(source: Source, source_name: str) -> Iterator[IO[bytes]]:
 
 
 def detect_format(handle: IO[bytes], source: Source, source_name: str) -> str:
-    magic = handle.read(8)
+    kind = array_file_type(handle.read(HEAD_BYTES))
     handle.seek(0)
-    if magic.startswith(_ZIP_MAGIC):
-        return "npz"
-    if magic.startswith(HDF5_MAGIC):
-        return "h5"
-    if magic.startswith(_NPY_MAGIC):
+    if kind in ("npz", "h5"):
+        return kind
+    if kind == "npy":
         raise MeasurementError(
             f"{source_name} is a .npy file (one bare array); save the tracks in an npz with a "
             "name, e.g. np.savez(path, W=W)"

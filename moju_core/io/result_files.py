@@ -14,7 +14,8 @@ import h5py
 import numpy as np
 
 from moju_core import __version__
-from moju_core.io._sources import HDF5_MAGIC, PathLike
+from moju_core.file_types import HDF5_MAGIC
+from moju_core.io._sources import PathLike
 from moju_core.io.atomic import atomic_output
 from moju_core.result import Result
 
