@@ -28,7 +28,7 @@ back to the input's points (the paper's ordering vector ``P``).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -45,6 +45,7 @@ from moju_core.loop_state import (
     permute_points,
 )
 from moju_core.params import SolverParams
+from moju_core.result import StopReason, TrajectoryBasisFit
 from moju_core.stopping import StoppingTest
 
 #: Called once per iteration with (iteration, gap, rho); returning True stops the loop.
@@ -64,12 +65,31 @@ HISTORY_KEYS = (
 
 @dataclass
 class LoopOutput:
-    """What :func:`run` returns.
+    """What :func:`run` returns: the loop's internal output, which
+    :func:`moju_core.reconstruct` turns into the public :class:`moju_core.result.Result`.
 
-    shapes : ndarray of shape (F, 3, P) in the input's point order.
-    labels : ndarray of shape (P,) group of every point (input order).
-    history : per-iteration diagnostics (see :class:`moju_core.result.Result`).
-    rotations : ndarray of shape (F, 2, 3), the rotations at the end (refined or as given).
+    Attributes
+    ----------
+    shapes : ndarray of shape (F, 3, P)
+        Per-frame shapes in the input's point order, in the units of the tracks.
+    rotations : ndarray of shape (F, 2, 3)
+        The rotations at the end (refined or as given).
+    labels : ndarray of shape (P,), int64
+        Group of every point (input order).
+    history : dict of str to ndarray of shape (n_iter,)
+        Per-iteration diagnostics, keys :data:`HISTORY_KEYS` (see
+        :class:`moju_core.result.Result`).
+    n_iter : int
+        Iterations run.
+    stop_reason : StopReason
+        Why the loop ended; :attr:`StopReason.STOPPED <moju_core.result.StopReason.STOPPED>`
+        when the hook asked it to.
+    n_groups : int
+        Local groups at the end.
+    label_changes : int
+        Trajectories moved between groups, summed over the regroupings.
+    trajectory_basis : TrajectoryBasisFit or None
+        Method ``"pta"`` only (built by the solver, not by :func:`run`).
     """
 
     shapes: np.ndarray
@@ -77,9 +97,10 @@ class LoopOutput:
     labels: np.ndarray
     history: dict[str, np.ndarray]
     n_iter: int
-    stop_reason: str
+    stop_reason: StopReason
+    n_groups: int = 1
     label_changes: int = 0
-    extras: dict[str, object] = field(default_factory=dict)
+    trajectory_basis: TrajectoryBasisFit | None = None
 
 
 def run(
@@ -107,7 +128,8 @@ def run(
         Track coordinates used for the initial k-means++ groups and the spatial neighbour
         graph (:func:`moju_core.clustering.track_features`); computed when omitted.
     hook : callable, optional
-        ``hook(iteration, gap, rho) -> bool``; True stops the loop (``stop_reason="stopped"``).
+        ``hook(iteration, gap, rho) -> bool``; True stops the loop
+        (``stop_reason=StopReason.STOPPED``).
     refine_rotations : bool, default False
         Refine the rotations with the shapes: while ``rho < ROTATION_REFINE_RHO``, every
         iteration fits them to the current low-rank shapes ``S#``
@@ -131,13 +153,13 @@ def run(
     group_lrr = GroupCoefficients.initial(state.n_groups, n_frames, params.low_dim, params.seed)
     stopping = StoppingTest(params.tol, params.rho_max)
     history: dict[str, list[float]] = {key: [] for key in HISTORY_KEYS}
-    stop_reason, iteration = "max_iter", 0
+    stop_reason, iteration = StopReason.MAX_ITER, 0
     for iteration in range(1, params.max_iter + 1):
         diagnostics = iterate(state, group_lrr, settings, iteration)
         for key in HISTORY_KEYS:
             history[key].append(diagnostics[key])
         if hook is not None and hook(iteration, diagnostics["gap"], state.rho):
-            stop_reason = "stopped"
+            stop_reason = StopReason.STOPPED
             break
         reason = stopping(diagnostics["gap_shape"], state.grouping_settled, state.rho)
         if reason is not None:
@@ -153,8 +175,8 @@ def run(
         history={key: np.asarray(values) for key, values in history.items()},
         n_iter=iteration,
         stop_reason=stop_reason,
+        n_groups=state.n_groups,
         label_changes=state.label_changes,
-        extras={"n_groups": state.n_groups},
     )
 
 

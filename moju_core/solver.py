@@ -9,7 +9,6 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from moju_core import (
-    __version__,
     admm,
     cameras,
     clustering,
@@ -23,7 +22,14 @@ from moju_core.cameras import projection
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams, rotation_method
 from moju_core.preprocessing import normalise
-from moju_core.result import Progress, Result
+from moju_core.result import (
+    Diagnostics,
+    Progress,
+    Result,
+    RotationRigidity,
+    StopReason,
+    TrajectoryBasisFit,
+)
 from moju_core.smoothness import choose_smoothness
 from moju_core.spectrum import noise_variance, significant_rank, spectrum
 from moju_core.validation import check_observations, check_rotations
@@ -259,18 +265,19 @@ def _reconstruct(
         stop_reason=out.stop_reason,
         scale=scale,
         visibility=visibility,
-        extras={
-            "version": __version__,
-            "n_groups_used": out.extras["n_groups"],
-            "rotation_source": estimate.source,
-            "rotation_window": estimate.window,
-            "rotations_refined": estimate.refine and params.method != "pta",
-            "rotation_rigidity": estimate.rigidity,
-            "noise_variance": noise * scale**2,
-            "observed_fraction": float(visibility.mean()),
-            "smoothness_trials": smoothness_trials,
-            **({"pta": out.extras["pta"]} if "pta" in out.extras else {}),
-        },
+        diagnostics=Diagnostics(
+            n_groups_used=out.n_groups,
+            rotation_source=estimate.source,
+            rotation_window=estimate.window,
+            rotations_refined=estimate.refine and params.method != "pta",
+            rotation_rigidity=None
+            if estimate.rigidity is None
+            else RotationRigidity(**estimate.rigidity),
+            noise_variance=float(noise * scale**2),
+            observed_fraction=float(visibility.mean()),
+            smoothness_trials=tuple(smoothness_trials),
+            trajectory_basis=out.trajectory_basis,
+        ),
     )
 
 
@@ -300,7 +307,7 @@ def _trajectory_basis(
     stop reason is ``"converged"``.
     """
     n_frames, _, n_points = tracks.shape
-    shapes, diagnostics = pta.solve(tracks, rotations, params.trajectory_bases, observed)
+    shapes, fit = pta.solve(tracks, rotations, params.trajectory_bases, observed)
     residual = projection.project(rotations, shapes) - tracks
     if observed is not None:
         residual = residual[np.broadcast_to(observed[:, None, :], residual.shape)]
@@ -321,6 +328,7 @@ def _trajectory_basis(
         labels=np.zeros(n_points, dtype=np.int64),
         history={key: np.array([value]) for key, value in history.items()},
         n_iter=1,
-        stop_reason="converged",
-        extras={"n_groups": 1, "pta": diagnostics},
+        stop_reason=StopReason.CONVERGED,
+        n_groups=1,
+        trajectory_basis=TrajectoryBasisFit(rank=int(fit["rank"]), condition=fit["condition"]),
     )

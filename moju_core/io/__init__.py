@@ -20,9 +20,10 @@ points (:func:`moju_core.validation.check_observations`).
 
 Result files hold ``shapes`` (F x P x 3, every point in every frame, the unobserved ones
 filled in by the solver), ``visibility`` (F x P bool, the observations used), ``rotations``
-(F x 2 x 3), ``labels`` (P,), the per-iteration history and the metadata; every result is
-written to a temporary file and renamed into place, so a crash never leaves a half-written file
-under the final name.
+(F x 2 x 3), ``labels`` (P,), the per-iteration history, the diagnostics and the metadata;
+:func:`read_result` returns the same :class:`~moju_core.result.Result` that
+:func:`moju_core.reconstruct` does. Every result is written to a temporary file and renamed
+into place, so a crash never leaves a half-written file under the final name.
 
 The package's modules: :mod:`~moju_core.io.measurements` (the validated input),
 :mod:`~moju_core.io.input_files` (reading and writing measurement files, with one private
@@ -35,14 +36,13 @@ from moju_core.io._sources import FORMATS, Admit, PathLike, Source
 from moju_core.io.atomic import atomic_output
 from moju_core.io.input_files import read_measurements, write_measurements
 from moju_core.io.measurements import Measurements
-from moju_core.io.result_files import ResultFile, read_result, write_result
+from moju_core.io.result_files import read_result, write_result
 
 __all__ = [
     "FORMATS",
     "Admit",
     "Measurements",
     "PathLike",
-    "ResultFile",
     "Source",
     "atomic_output",
     "read_measurements",

@@ -1,12 +1,11 @@
-"""Result files: what :func:`moju_core.reconstruct` returns, written to and read from npz
-or HDF5.
+"""Result files: the :class:`~moju_core.result.Result` of :func:`moju_core.reconstruct`,
+written to and read back from npz or HDF5.
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -17,72 +16,15 @@ from moju_core import __version__
 from moju_core.file_types import HDF5_MAGIC
 from moju_core.io._sources import PathLike
 from moju_core.io.atomic import atomic_output
-from moju_core.result import Result
+from moju_core.params import SolverParams
+from moju_core.result import Diagnostics, Result
 
 _RESULT_EXTENSIONS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5"}
 _HISTORY_PREFIX = "history_"
 _RESULT_ARRAYS = ("shapes", "rotations", "labels")
 #: Optional in a result file: files written before it existed lack it.
 _RESULT_VISIBILITY = "visibility"
-_RESULT_JSON = ("params", "timings", "metadata")
-
-
-@dataclass
-class ResultFile:
-    """Contents of a result file written by :func:`write_result`.
-
-    Attributes
-    ----------
-    shapes : ndarray of shape (F, P, 3), float64
-        Per-frame 3D points in the units of the input tracks.
-    rotations : ndarray of shape (F, 2, 3), float64
-        Per-frame camera rotations.
-    labels : ndarray of shape (P,), int64
-        Local group of every point.
-    history : dict of str to ndarray of shape (n_iter,)
-        Per-iteration convergence history (``gap``, ``rho``, ...).
-    params : dict
-        The solver parameters used (``SolverParams.model_dump()``).
-    timings : dict of str to float
-        Seconds per stage.
-    n_iter : int
-        Number of ADMM iterations.
-    stop_reason : str
-        Why the loop stopped.
-    scale : float
-        Factor the tracks were divided by before solving.
-    version : str
-        moju version that wrote the file.
-    metadata : dict
-        Caller-supplied metadata (job id, input name, ...); empty when none was given.
-    visibility : ndarray of shape (F, P), bool, or None
-        The observations the solver used: True where point ``j`` was observed in frame
-        ``f``; ``shapes`` holds the other entries as filled in by the solver. None for files
-        written by versions that did not store it.
-    """
-
-    shapes: np.ndarray
-    rotations: np.ndarray
-    labels: np.ndarray
-    history: dict[str, np.ndarray]
-    params: dict[str, Any]
-    timings: dict[str, float]
-    n_iter: int
-    stop_reason: str
-    scale: float
-    version: str
-    metadata: dict[str, Any] = field(default_factory=dict)
-    visibility: np.ndarray | None = None
-
-    @property
-    def n_frames(self) -> int:
-        """Number of frames F."""
-        return self.shapes.shape[0]
-
-    @property
-    def n_points(self) -> int:
-        """Number of points P."""
-        return self.shapes.shape[1]
+_RESULT_JSON = ("params", "timings", "metadata", "diagnostics")
 
 
 def _json_default(value: Any) -> Any:
@@ -110,7 +52,7 @@ def _result_contents(
             f"result.rotations {rotations.shape} and result.labels {labels.shape} do not match "
             f"result.shapes {shapes.shape}: expected ({n_frames}, 2, 3) and ({n_points},)"
         )
-    visibility = getattr(result, "visibility", None)
+    visibility = result.visibility
     if visibility is None:  # a solve of complete data
         visibility = np.ones((n_frames, n_points), dtype=bool)
     visibility = np.ascontiguousarray(visibility, dtype=bool)
@@ -128,6 +70,10 @@ def _result_contents(
         "params": json.dumps(result.params.model_dump(mode="json")),
         "timings": json.dumps(dict(result.timings), default=_json_default),
         "metadata": json.dumps(dict(metadata or {}), default=_json_default),
+        "diagnostics": json.dumps(
+            None if result.diagnostics is None else result.diagnostics.to_dict(),
+            default=_json_default,
+        ),
         "n_iter": int(result.n_iter),
         "stop_reason": str(result.stop_reason),
         "scale": float(result.scale),
@@ -178,10 +124,11 @@ def write_result(
     -----
     npz layout: arrays ``shapes``, ``rotations``, ``labels``, ``visibility`` (F x P bool,
     all True when ``result.visibility`` is None), ``history_<key>``, 0-d
-    ``n_iter`` (int64) and ``scale`` (float64), 0-d unicode ``stop_reason``, ``version`` and the
-    JSON documents ``params``, ``timings``, ``metadata``. HDF5 layout: the same arrays as
-    datasets, the history as datasets of group ``history``, the rest as root attributes.
-    ``result.extras`` is not stored.
+    ``n_iter`` (int64) and ``scale`` (float64), 0-d unicode ``stop_reason``, ``version`` (of
+    the writer, :data:`moju_core.__version__`) and the JSON documents ``params``, ``timings``,
+    ``metadata`` and ``diagnostics`` (:meth:`moju_core.result.Diagnostics.to_dict`, ``null``
+    when ``result.diagnostics`` is None). HDF5 layout: the same arrays as datasets, the history
+    as datasets of group ``history``, the rest as root attributes.
     """
     path = Path(path)
     file_format = _result_format(path)
@@ -221,8 +168,20 @@ def _result_visibility(arrays: Mapping[str, np.ndarray]) -> np.ndarray | None:
     return visibility
 
 
-def read_result(path: PathLike) -> ResultFile:
+def read_result(path: PathLike) -> Result:
     """Read a result file written by :func:`write_result` (npz or HDF5, by content).
+
+    Files written by earlier versions read too:
+
+    * ``params`` keys that :class:`~moju_core.params.SolverParams` no longer has are dropped,
+      and parameters added since take their defaults; a stored value the current schema
+      refuses makes the file unreadable (ValueError);
+    * without a ``visibility`` dataset, :attr:`Result.visibility` is None (the viewer and the
+      metrics then treat every point as observed);
+    * without a ``diagnostics`` document, or with one this version cannot interpret (a field
+      missing, a value of the wrong form), :attr:`Result.diagnostics` is None; keys it does
+      not know are ignored;
+    * a missing ``timings`` or ``metadata`` document reads as an empty dict.
 
     Parameters
     ----------
@@ -231,7 +190,9 @@ def read_result(path: PathLike) -> ResultFile:
 
     Returns
     -------
-    ResultFile
+    Result
+        With ``version`` the moju version that wrote the file and ``metadata`` what its writer
+        passed as ``metadata``.
 
     Raises
     ------
@@ -242,47 +203,73 @@ def read_result(path: PathLike) -> ResultFile:
     with open(path, "rb") as handle:
         is_hdf5 = handle.read(8) == HDF5_MAGIC
     try:
-        if is_hdf5:
-            with h5py.File(path, "r") as h5:
-                arrays = {name: h5[name][()] for name in _RESULT_ARRAYS}
-                if _RESULT_VISIBILITY in h5:
-                    arrays[_RESULT_VISIBILITY] = h5[_RESULT_VISIBILITY][()]
-                group = h5.get("history")
-                history = {key: group[key][()] for key in group} if group is not None else {}
-                scalars = dict(h5.attrs)
-        else:
-            with np.load(path, allow_pickle=False) as npz:
-                arrays = {name: npz[name] for name in _RESULT_ARRAYS}
-                if _RESULT_VISIBILITY in npz.files:
-                    arrays[_RESULT_VISIBILITY] = npz[_RESULT_VISIBILITY]
-                history = {
-                    key[len(_HISTORY_PREFIX) :]: npz[key]
-                    for key in npz.files
-                    if key.startswith(_HISTORY_PREFIX)
-                }
-                scalars = {
-                    key: npz[key]
-                    for key in npz.files
-                    if key not in arrays and not key.startswith(_HISTORY_PREFIX)
-                }
-        json_parts = {
-            key: json.loads(_text(scalars[key])) if key in scalars else {} for key in _RESULT_JSON
-        }
-        return ResultFile(
+        arrays, history, scalars = _read_hdf5(path) if is_hdf5 else _read_npz(path)
+        documents = {key: json.loads(_text(scalars[key])) for key in _RESULT_JSON if key in scalars}
+        return Result(
             shapes=np.asarray(arrays["shapes"], dtype=np.float64),
             rotations=np.asarray(arrays["rotations"], dtype=np.float64),
             labels=np.asarray(arrays["labels"], dtype=np.int64),
             history=history,
-            params=json_parts["params"],
-            timings=json_parts["timings"],
+            timings=documents.get("timings") or {},
+            params=_stored_params(documents["params"]),
             n_iter=int(scalars["n_iter"]),
             stop_reason=_text(scalars["stop_reason"]),
             scale=float(scalars["scale"]),
-            version=_text(scalars["version"]),
-            metadata=json_parts["metadata"],
+            diagnostics=_stored_diagnostics(documents.get("diagnostics")),
             visibility=_result_visibility(arrays),
+            version=_text(scalars["version"]),
+            metadata=documents.get("metadata") or {},
         )
-    except Exception as exc:  # h5py, zipfile and json each raise their own types
+    except Exception as exc:  # h5py, zipfile, json and pydantic each raise their own types
         raise ValueError(
             f"{path.name} is not a readable MoJu result file ({type(exc).__name__}: {exc})"
         ) from exc
+
+
+_Parts = tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]
+
+
+def _read_hdf5(path: Path) -> _Parts:
+    """Arrays, history and root attributes of an HDF5 result file."""
+    with h5py.File(path, "r") as h5:
+        arrays = {name: h5[name][()] for name in _RESULT_ARRAYS}
+        if _RESULT_VISIBILITY in h5:
+            arrays[_RESULT_VISIBILITY] = h5[_RESULT_VISIBILITY][()]
+        group = h5.get("history")
+        history = {key: group[key][()] for key in group} if group is not None else {}
+        return arrays, history, dict(h5.attrs)
+
+
+def _read_npz(path: Path) -> _Parts:
+    """Arrays, history and 0-d members of an npz result file."""
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {name: npz[name] for name in _RESULT_ARRAYS}
+        if _RESULT_VISIBILITY in npz.files:
+            arrays[_RESULT_VISIBILITY] = npz[_RESULT_VISIBILITY]
+        history = {
+            key[len(_HISTORY_PREFIX) :]: npz[key]
+            for key in npz.files
+            if key.startswith(_HISTORY_PREFIX)
+        }
+        scalars = {
+            key: npz[key]
+            for key in npz.files
+            if key not in arrays and not key.startswith(_HISTORY_PREFIX)
+        }
+    return arrays, history, scalars
+
+
+def _stored_params(values: Mapping[str, Any]) -> SolverParams:
+    """The stored parameters, without the keys this version's schema no longer has."""
+    known = SolverParams.model_fields
+    return SolverParams.model_validate({k: v for k, v in values.items() if k in known})
+
+
+def _stored_diagnostics(values: Mapping[str, Any] | None) -> Diagnostics | None:
+    """The stored diagnostics, or None when there are none this version can interpret."""
+    if not isinstance(values, Mapping):
+        return None
+    try:
+        return Diagnostics.from_dict(values)
+    except (TypeError, ValueError):
+        return None
