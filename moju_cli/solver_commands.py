@@ -639,7 +639,7 @@ def evaluate(result_file: str, truth_file: str, as_json: bool) -> None:
     if as_json:
         click.echo(json.dumps(scores))
         return
-    estimated = result.params.get("rotations", "intersection") != "known"
+    estimated = result.params.rotations != "known"
     for line in _format_scores(scores, rotations_estimated=estimated):
         click.echo(line)
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from moju_core import file_types
 from moju_core.io import read_result
+from moju_core.result import Result
 
 __all__ = [
     "DEFAULT_MAX_POINTS",
@@ -101,9 +102,9 @@ class ResultView:
         return int(self.shapes.shape[1])
 
     @classmethod
-    def of(cls, result: Any) -> ResultView:
-        """The view of an in-memory result (:class:`moju_core.result.Result` or
-        :class:`moju_core.io.ResultFile`)."""
+    def of(cls, result: Result) -> ResultView:
+        """The view of an in-memory :class:`moju_core.result.Result` (solved or read from a
+        file)."""
         return cls(
             shapes=np.asarray(result.shapes),
             rotations=np.asarray(result.rotations),
@@ -111,7 +112,7 @@ class ResultView:
             history=dict(result.history),
             n_iter=int(result.n_iter),
             stop_reason=str(result.stop_reason),
-            visibility=getattr(result, "visibility", None),
+            visibility=result.visibility,
         )
 
     def observed(self, frame: int) -> np.ndarray:

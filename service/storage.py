@@ -109,9 +109,7 @@ class Storage(Protocol):
     ) -> None:
         """Store a job's result atomically."""
 
-    def write_video(
-        self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path
-    ) -> None:
+    def write_video(self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path) -> None:
         """Move an uploaded video (and its mask and first frame) into the job's area."""
 
     def video_files(self, job_id: UUID) -> tuple[Path, Path | None]:
@@ -200,9 +198,7 @@ class LocalStorage:
             self._existing_directory(job_id) / RESULT_NAMES["h5"], result, metadata=metadata
         )
 
-    def write_video(
-        self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path
-    ) -> None:
+    def write_video(self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path) -> None:
         """Move the staged files in as ``video.<ext>``, ``mask.png`` and ``first_frame.png``."""
         directory = self._existing_directory(job_id)
         name = f"video{video.suffix.lower()}"
@@ -337,4 +333,3 @@ class LocalStorage:
                 continue
             if entry.is_dir() and str(job_id) == entry.name:
                 yield job_id, modified
-

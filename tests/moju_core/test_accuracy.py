@@ -40,5 +40,5 @@ def test_default_solver_meets_the_accuracy_targets(sequence, rotations):
         if not known:
             # Dai et al.'s shape bases do not describe these sheets: the camera step chose
             # the windowed rotations and the loop refined them.
-            assert result.extras["rotation_source"] == "windowed"
-            assert result.extras["rotations_refined"]
+            assert result.diagnostics.rotation_source == "windowed"
+            assert result.diagnostics.rotations_refined

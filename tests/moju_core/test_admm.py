@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from moju_core import SolverParams, admm, clustering, defaults, reconstruct
+from moju_core import SolverParams, StopReason, admm, clustering, defaults, reconstruct
 from moju_core.datasets import make_sequence
 from moju_core.defaults import GAP_PRECISION, SETTLED_MOVE_FRACTION
 from moju_core.metrics import e3d
@@ -82,7 +82,7 @@ def test_a_hook_returning_true_stops_the_loop_after_that_iteration() -> None:
         return iteration == 3
 
     out = admm.run(tracks, data.rotations, params, hook=hook)
-    assert out.stop_reason == "stopped" and out.n_iter == 3
+    assert out.stop_reason is StopReason.STOPPED and out.n_iter == 3
     assert [iteration for iteration, _ in seen] == [1, 2, 3]
     assert all(len(values) == 3 for values in out.history.values())
     assert [rho for _, rho in seen] == list(out.history["rho"])  # rho grows after the test

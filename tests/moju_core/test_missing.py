@@ -86,7 +86,7 @@ def test_complete_data_gives_bitwise_the_same_result_with_or_without_a_full_mask
         visibility=np.ones((face.n_frames, face.n_points), bool),
     )
     assert np.array_equal(plain.shapes, masked.shapes)
-    assert plain.visibility.all() and plain.extras["observed_fraction"] == 1.0
+    assert plain.visibility.all() and plain.diagnostics.observed_fraction == 1.0
 
 
 @pytest.mark.parametrize("method", ["moju", "bmm", "pta"])
@@ -98,7 +98,7 @@ def test_occluded_tracks_are_reconstructed_close_to_the_complete_solve(face, met
     assert result.shapes.shape == (face.n_frames, face.n_points, 3)
     assert np.isfinite(result.shapes).all()
     assert np.array_equal(result.visibility, visibility)
-    assert result.extras["observed_fraction"] == pytest.approx(visibility.mean())
+    assert result.diagnostics.observed_fraction == pytest.approx(visibility.mean())
     # A sweeping band over 20 % of the width and 2 % dropout: at most 1.5x the error.
     assert e3d(result.shapes, face.shapes) < 1.5 * e3d(complete.shapes, face.shapes) + 0.005
 

@@ -141,6 +141,6 @@ def test_the_loop_solves_the_prior_exactly_only_when_it_refits_the_cameras(
         SolverParams(rotations=rotations, smoothness=10.0, max_iter=5),
         rotations=data.rotations if rotations == "known" else None,
     )
-    assert result.extras["rotations_refined"] is exact
+    assert result.diagnostics.rotations_refined is exact
     assert (calls["exact"] > 0) is exact
     assert (calls["filter"] > 0) is not exact

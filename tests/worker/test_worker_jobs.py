@@ -205,5 +205,5 @@ def test_same_file_gives_the_same_rotations_from_the_cli_and_a_job(
     from_cli, from_job = read_result(output), storage.read_result(job_id)
     np.testing.assert_allclose(from_job.rotations, from_cli.rotations, rtol=0, atol=1e-12)
     resolved = store.get(job_id, reconcile_with_rq=False).result.resolved_parameters.rotations
-    assert resolved == from_cli.params["rotations"]
+    assert resolved == from_cli.params.rotations
     assert (resolved == "known") is (requested is None)
