@@ -41,15 +41,20 @@ class Stage(StrEnum):
 class StopReason(StrEnum):
     """Why the loop stopped, :attr:`Result.stop_reason`.
 
-    A ``str``: ``StopReason.CONVERGED == "converged"``, and result files store its value.
+    A ``str``: ``StopReason.CONVERGED == "converged"``, and result files store its value. A
+    result holds ``"converged"``, ``"rho_max"`` or ``"max_iter"``; ``"stopped"`` (the loop's
+    hook asked it to stop) is reported by the internal loop only, since
+    :func:`moju_core.reconstruct` raises :class:`~moju_core.errors.Cancelled` instead.
     """
 
     CONVERGED = "converged"
     RHO_MAX = "rho_max"
     MAX_ITER = "max_iter"
-    #: The loop's hook asked it to stop (the internal ADMM loop only: :func:`reconstruct`
-    #: raises :class:`~moju_core.errors.Cancelled` instead, so no Result holds it).
     STOPPED = "stopped"
+
+
+#: The stop reasons a :class:`Result` can hold (not :attr:`StopReason.STOPPED`).
+RESULT_STOP_REASONS = (StopReason.CONVERGED, StopReason.RHO_MAX, StopReason.MAX_ITER)
 
 
 @dataclass(frozen=True)
@@ -244,6 +249,8 @@ class Result:
 
     def __post_init__(self) -> None:
         self.stop_reason = StopReason(self.stop_reason)
+        if self.stop_reason not in RESULT_STOP_REASONS:
+            raise ValueError(f"a Result cannot have stop_reason {self.stop_reason.value!r}")
 
     @property
     def n_frames(self) -> int:

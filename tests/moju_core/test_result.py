@@ -39,6 +39,9 @@ def test_stop_reason_and_stage_are_str_enums(result):
     assert f"{progress.stage}" == "iterating"
     with pytest.raises(ValueError):
         Progress("thinking", 1, 10, 0.1, 0.01, 0.5, 1.0, None)
+    # "stopped" is the internal loop's (its hook's) stop; reconstruct raises Cancelled instead.
+    with pytest.raises(ValueError, match="cannot have stop_reason 'stopped'"):
+        dataclasses.replace(result, stop_reason=StopReason.STOPPED)
 
 
 def test_reported_stages_are_stage_members():
