@@ -124,24 +124,13 @@ def test_embedded_data_cannot_close_its_script_element() -> None:
 
 
 def test_filled_in_points_are_marked_in_the_page(files, tmp_path: Path) -> None:
-    from moju_core.io import read_result
-    from moju_core.result import Result
+    import dataclasses
 
-    stored = read_result(files["result"])
+    from moju_core.io import read_result
+
     visibility = np.ones((10, 300), dtype=bool)
     visibility[2, 5:9] = False
-    occluded = Result(
-        shapes=stored.shapes,
-        rotations=stored.rotations,
-        labels=stored.labels,
-        history=stored.history,
-        timings=stored.timings,
-        params=SolverParams(**stored.params),
-        n_iter=stored.n_iter,
-        stop_reason=stored.stop_reason,
-        scale=stored.scale,
-        visibility=visibility,
-    )
+    occluded = dataclasses.replace(read_result(files["result"]), visibility=visibility)
     result_path = write_result(tmp_path / "occluded.h5", occluded)
     output = tmp_path / "occluded.html"
     run = CliRunner().invoke(cli, ["view", str(result_path), "-o", str(output)])
