@@ -260,8 +260,7 @@ class LocalStorage:
         if not npz_path.is_file():
             # Two concurrent first downloads both convert; each rename is atomic, so either
             # copy wins and both are identical.
-            stored = read_result(h5_path)
-            write_result(npz_path, stored, metadata=stored.metadata)
+            write_result(npz_path, read_result(h5_path))  # with the stored metadata
         return npz_path
 
     @contextlib.contextmanager

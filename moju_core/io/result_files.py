@@ -69,7 +69,9 @@ def _result_contents(
     scalars = {
         "params": json.dumps(result.params.model_dump(mode="json")),
         "timings": json.dumps(dict(result.timings), default=_json_default),
-        "metadata": json.dumps(dict(metadata or {}), default=_json_default),
+        "metadata": json.dumps(
+            dict(result.metadata if metadata is None else metadata), default=_json_default
+        ),
         "diagnostics": json.dumps(
             None if result.diagnostics is None else result.diagnostics.to_dict(),
             default=_json_default,
@@ -113,7 +115,9 @@ def write_result(
     result : Result
         The reconstruction.
     metadata : mapping, optional
-        Extra JSON-serialisable information stored with the result (job id, input name, ...).
+        Extra JSON-serialisable information stored with the result (job id, input name, ...);
+        ``result.metadata`` when omitted (empty for a fresh solve, what the file held for a
+        result read back with :func:`read_result`).
 
     Returns
     -------

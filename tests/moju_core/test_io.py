@@ -778,6 +778,10 @@ def test_result_round_trip(tmp_path, result, suffix):
     assert loaded.scale == 12.5
     assert loaded.version == moju_core.__version__
     assert loaded.metadata == {"job_id": "abc", "input": "face.npz", "n_points": 6}
+    # Written again without metadata, a result read back keeps its own.
+    again = read_result(write_result(tmp_path / f"again{suffix}", loaded))
+    assert again.metadata == loaded.metadata
+    (tmp_path / f"again{suffix}").unlink()
     assert (loaded.n_frames, loaded.n_points) == (N_FRAMES, N_POINTS)
     assert [p.name for p in tmp_path.iterdir()] == [f"result{suffix}"]
 
