@@ -11,6 +11,7 @@ WORKDIR /app
 # Dependencies first, so that editing the code does not reinstall them.
 COPY pyproject.toml README.md ./
 COPY moju_core ./moju_core
+COPY moju_viewer ./moju_viewer
 COPY moju_cli ./moju_cli
 COPY service ./service
 COPY worker ./worker

@@ -50,9 +50,9 @@ from harness import (
 )
 from threadpoolctl import threadpool_limits
 
+from moju_core.cameras.rigid import rigid_rotations
 from moju_core.datasets import HARD_SEQUENCE_NAMES, Sequence, make_sequence
 from moju_core.metrics import e3d, evaluate, rigid_approximation
-from moju_core.rotations import rigid_rotations
 
 #: Method label -> (SolverParams.method, parameter overrides); "rigid" is not a solver method
 #: but the least-squares rigid shape for the cameras (see :func:`rigid_row`).
@@ -83,7 +83,7 @@ def rigid_row(data: Sequence, rotation_source: str) -> dict[str, Any]:
     """The best rigid reconstruction for the cameras: Tomasi-Kanade.
 
     The cameras are the true ones (``"known"``) or Tomasi and Kanade's rigid factorisation
-    (``"estimated"``, :func:`moju_core.rotations.rigid_rotations`); the shape is the one
+    (``"estimated"``, :func:`moju_core.cameras.rigid.rigid_rotations`); the shape is the one
     least-squares ``S`` (3, P) with ``R_f S ~ W_f`` for every frame (row-centred W), repeated
     over the frames. The row has the fields of :func:`harness.solve` that apply.
     """

@@ -39,7 +39,8 @@ from harness import (
     write_markdown,
 )
 
-from moju_core import camera, lrr
+from moju_core import lrr
+from moju_core.cameras import projection
 from moju_core.metrics import e3d
 from moju_core.preprocessing import normalise
 
@@ -68,8 +69,8 @@ def exact_minimiser(
         ``||f(S) - J||_F / ||J||_F`` at the end.
     """
     n_frames = rotations.shape[0]
-    back_projected = camera.back_project(rotations, tracks)
-    normals = camera.viewing_directions(rotations)
+    back_projected = projection.back_project(rotations, tracks)
+    normals = projection.viewing_directions(rotations)
     shapes = back_projected.copy()
     sigma = np.linalg.svd(shapes.reshape(n_frames, -1), compute_uv=False)[0]
     rho = 1.0 / (0.01 * sigma)
@@ -132,7 +133,9 @@ def weight_rows(name: str, n_points: int, seed: int) -> list[dict]:
     """Item 2 of the module docstring: bmm's e3D versus its nuclear-norm weight."""
     data = sequence(name, n_points, 0.0, seed)
     centred, _ = normalise(data.W)
-    initial = camera.back_project(data.rotations, centred.reshape(data.n_frames, 2, data.n_points))
+    initial = projection.back_project(
+        data.rotations, centred.reshape(data.n_frames, 2, data.n_points)
+    )
     sigma = np.linalg.svd(initial.reshape(data.n_frames, -1), compute_uv=False)[0]
     rows = []
     for relative, growth in WEIGHTS:

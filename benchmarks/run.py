@@ -197,7 +197,8 @@ def table1(config: Config, meta: dict, out: Path, seed: int) -> Item:
 
 
 def target_claims(rows: list[dict]) -> list[tuple[str, bool | None, str]]:
-    """The accuracy targets of issue #2 for the default solver (moju)."""
+    """The accuracy goals for the default solver (moju): faces and sheets, known and estimated
+    rotations."""
 
     def both(names: tuple[str, ...]) -> dict[str, tuple[dict, dict]]:
         """moju's known- and estimated-rotation rows of the sequences that have both."""

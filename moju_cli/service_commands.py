@@ -194,7 +194,10 @@ class _ProgressBar:
         progress = job.progress
         if progress is not None:
             self.bar.n = round(100 * progress.fraction, 1)
-            text += f" {progress.stage} {progress.iteration}/{progress.max_iter}"
+            # A finished job's last stage is "finished" too: say it once.
+            if progress.stage != text:
+                text += f" {progress.stage}"
+            text += f" {progress.iteration}/{progress.max_iter}"
             if progress.gap is not None:
                 text += f" gap {progress.gap:.1e}"
             if progress.eta is not None and job.status.value == "running":
@@ -245,6 +248,7 @@ def submit(
     output: Path | None,
 ) -> None:
     """Upload INPUT (npz, HDF5 or CSV tracks) to a MoJu service as a job."""
+    from moju_cli.stop_reasons import describe_stop
     from service.client import MojuClient, MojuError
 
     if output is not None and output.suffix.lower() not in (".npz", ".h5", ".hdf5"):
@@ -264,8 +268,11 @@ def submit(
                 job = client.wait(job.id, on_progress=bar)
             finally:
                 bar.close()
-            click.echo(f"job {job.id} finished: {job.result.n_iter} iterations, "
-                       f"{job.result.stop_reason}")  # fmt: skip
+            resolved = job.result.resolved_parameters
+            reason = describe_stop(
+                str(job.result.stop_reason), method=resolved.method, tol=resolved.tol
+            )
+            click.echo(f"job {job.id} finished: {job.result.n_iter} iterations, {reason}")
             if output is not None:
                 client.download(job.id, output)
                 click.echo(f"result written to {output}")

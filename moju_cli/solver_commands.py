@@ -26,6 +26,8 @@ from pydantic import ValidationError
 from pydantic.fields import FieldInfo
 from tqdm import tqdm
 
+from moju_cli.stop_reasons import describe_stop
+from moju_cli.video_commands import check_frame_range, tracking_options
 from moju_core import defaults
 from moju_core.datasets import HARD_SEQUENCE_NAMES, SEQUENCE_NAMES, make_sequence
 from moju_core.errors import MeasurementError
@@ -54,13 +56,6 @@ DEFAULT_THREADS = 1
 
 #: Exit status of a process stopped by SIGINT, as shells report it (128 + signal 2).
 EXIT_INTERRUPTED = 130
-
-#: What each stop reason of :attr:`moju_core.result.Result.stop_reason` means, for humans.
-STOP_REASONS = {
-    "converged": "converged: the gap fell below tol",
-    "rho_max": "stopped: the penalty reached rho_max",
-    "max_iter": "stopped: max_iter iterations reached",
-}
 
 #: Labels of the scores of :func:`moju_core.metrics.evaluate`, in printing order.
 SCORE_LABELS = {
@@ -177,7 +172,9 @@ class _ProgressBar:
 
     The bar counts ADMM iterations against :func:`moju_core.defaults.expected_iterations`
     (the iterations until the penalty reaches ``rho_max``), which is exact unless the gap
-    converges first; it then jumps to the end.
+    converges first; it then jumps to the end. While iterating it shows the gap the solver
+    reports (the larger of the shape and coefficient gaps); at the end, the last shape gap,
+    the one the convergence test compares with ``tol`` (:meth:`finish`).
     """
 
     def __init__(self, params: SolverParams, enabled: bool) -> None:
@@ -204,6 +201,12 @@ class _ProgressBar:
             # An early convergence ends the loop before the expected count: show it complete.
             self.bar.total = max(self.bar.n, 1)
             self.bar.refresh()
+
+    def finish(self, result: Result) -> None:
+        """Show the last shape gap of ``result``, which the stop reason is about."""
+        shape_gap = _last_shape_gap(result)
+        if shape_gap is not None and self.bar.n:
+            self.bar.set_postfix_str(f"shape gap={shape_gap:.1e}", refresh=True)
 
     def warn(
         self,
@@ -246,9 +249,11 @@ def _solve(
             warnings.showwarning = bar.warn
             # Complete data go through the call as before; a mask only when something is missing.
             masked = {} if visibility is None else {"visibility": visibility}
-            return reconstruct(
+            result = reconstruct(
                 W, params, rotations=rotations, callback=bar, threads=threads, **masked
             )
+        bar.finish(result)
+        return result
     except MeasurementError as exc:
         raise click.ClickException(str(exc)) from exc
     finally:
@@ -384,8 +389,18 @@ def _format_scores(scores: dict[str, float], *, rotations_estimated: bool) -> li
     return lines
 
 
+def _last_shape_gap(result: Result) -> float | None:
+    shape_gaps = result.history.get("gap_shape")
+    return float(shape_gaps[-1]) if shape_gaps is not None and len(shape_gaps) else None
+
+
 def _summary(result: Result, n_frames: int, n_points: int, observed: float = 1.0) -> str:
-    reason = STOP_REASONS.get(result.stop_reason, result.stop_reason)
+    reason = describe_stop(
+        str(result.stop_reason),
+        method=result.params.method,
+        tol=result.params.tol,
+        shape_gap=_last_shape_gap(result),
+    )
     seen = f" ({100 * observed:.1f} % observed)" if observed < 1.0 else ""
     return (
         f"{n_frames} frames x {n_points} points{seen}: {result.n_iter} "
@@ -394,9 +409,7 @@ def _summary(result: Result, n_frames: int, n_points: int, observed: float = 1.0
     )
 
 
-def _occlusion_mask(
-    used: np.ndarray | None, of_input: np.ndarray | None
-) -> np.ndarray | None:
+def _occlusion_mask(used: np.ndarray | None, of_input: np.ndarray | None) -> np.ndarray | None:
     """The visibility to score the occluded entries by: the one the solver used (the result's)
     when it misses something, else the input's; None when neither does."""
     for mask in (used, of_input):
@@ -425,30 +438,7 @@ def _occlusion_mask(
     help="Also write one PLY per frame here (with INPUT's faces and colors when present; "
     "for a video, coloured from its first frame).",
 )
-@click.option(
-    "--mask",
-    type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    default=None,
-    help="Video only, as for moju track: PNG marking the object in the first tracked frame.",
-)
-@click.option(
-    "--step",
-    type=click.IntRange(min=1),
-    default=None,
-    help=f"Video only: grid spacing of the tracked points in pixels [default: {DEFAULT_STEP}].",
-)
-@click.option(
-    "--start",
-    type=click.IntRange(min=0),
-    default=None,
-    help="Video only: first frame to track (from 0) [default: 0].",
-)
-@click.option(
-    "--end",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Video only: frame to stop before (exclusive) [default: the last frame].",
-)
+@tracking_options(video_only=True)
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 @_threads_option
 @_solver_options
@@ -561,9 +551,7 @@ def _check_video_options(video: bool, **options: Any) -> None:
             f"{names} only apply to a video input (mp4, webm, avi or a folder of images); "
             "INPUT is a measurement file"
         )
-    start, end = options["start"] or 0, options["end"]
-    if end is not None and end <= start:
-        raise click.BadParameter(f"--end ({end}) must be after --start ({start})")
+    check_frame_range(options["start"], options["end"])
 
 
 def _track_video_input(
@@ -651,7 +639,7 @@ def evaluate(result_file: str, truth_file: str, as_json: bool) -> None:
     if as_json:
         click.echo(json.dumps(scores))
         return
-    estimated = result.params.get("rotations", "intersection") != "known"
+    estimated = result.params.rotations != "known"
     for line in _format_scores(scores, rotations_estimated=estimated):
         click.echo(line)
 

@@ -9,9 +9,10 @@ from __future__ import annotations
 import sys
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TypeVar
 
 import click
 import numpy as np
@@ -33,6 +34,72 @@ DEMO_VIDEO_FRAMES = 40
 
 # Exit status of a process stopped by SIGINT, as shells report it (128 + signal 2).
 _EXIT_INTERRUPTED = 130
+
+F = TypeVar("F", bound=Callable[..., object])
+
+
+def tracking_options(*, video_only: bool = False) -> Callable[[F], F]:
+    """The tracking options --mask, --step, --start and --end, declared once.
+
+    ``moju track`` uses them as they are. ``moju reconstruct`` takes a video or a
+    measurement file; with ``video_only`` every default is None, so that the command can tell
+    an option given for a measurement file (and refuse it), and the help says "Video only";
+    the tracker's defaults apply when they are unset.
+    """
+
+    def default(value: object) -> object:
+        return None if video_only else value
+
+    def described(text: str, default_text: str | None = None) -> str:
+        if not video_only:
+            return f"{text[0].upper()}{text[1:]}."
+        shown = f" [default: {default_text}]" if default_text is not None else ""
+        return f"Video only, as for moju track: {text}{shown}."
+
+    options = [
+        click.option(
+            "--mask",
+            type=click.Path(exists=True, dir_okay=False, path_type=Path),
+            default=None,
+            help=described(
+                "PNG of the first tracked frame's size; non-zero pixels mark the object "
+                "[default: the textured region, with a warning]"
+            ),
+        ),
+        click.option(
+            "--step",
+            type=click.IntRange(min=1),
+            default=default(DEFAULT_STEP),
+            show_default=not video_only,
+            help=described("grid spacing of the tracked points, in pixels", str(DEFAULT_STEP)),
+        ),
+        click.option(
+            "--start",
+            type=click.IntRange(min=0),
+            default=default(0),
+            show_default=not video_only,
+            help=described("first frame to track (frames are numbered from 0)", "0"),
+        ),
+        click.option(
+            "--end",
+            type=click.IntRange(min=1),
+            default=None,
+            help=described("frame to stop before (exclusive) [default: the last frame]"),
+        ),
+    ]
+
+    def decorate(function: F) -> F:
+        for option in reversed(options):
+            function = option(function)
+        return function
+
+    return decorate
+
+
+def check_frame_range(start: int | None, end: int | None) -> None:
+    """Refuse an --end that is not after --start (unset --start: 0)."""
+    if end is not None and end <= (start or 0):
+        raise click.BadParameter(f"--end ({end}) must be after --start ({start or 0})")
 
 
 @contextmanager
@@ -145,33 +212,7 @@ def _write(path: Path, tracks: Tracks) -> None:
     type=click.Path(dir_okay=False, path_type=Path),
     help="Tracks file (npz: W with NaN where lost, visibility, colors, frame_size).",
 )
-@click.option(
-    "--mask",
-    type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    default=None,
-    help="PNG of the first tracked frame's size; non-zero pixels mark the object "
-    "[default: the textured region, with a warning].",
-)
-@click.option(
-    "--step",
-    type=click.IntRange(min=1),
-    default=DEFAULT_STEP,
-    show_default=True,
-    help="Grid spacing of the tracked points, in pixels.",
-)
-@click.option(
-    "--start",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="First frame to track (frames are numbered from 0).",
-)
-@click.option(
-    "--end",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Frame to stop before (exclusive) [default: the last frame].",
-)
+@tracking_options()
 @click.option(
     "--method",
     type=click.Choice(["dis", "farneback"]),
@@ -198,8 +239,7 @@ def track(
     Positions are pixels: x to the right, y down, pixel centres at integers.
     """
     _check_output(output)
-    if end is not None and end <= start:
-        raise click.BadParameter(f"--end ({end}) must be after --start ({start})")
+    check_frame_range(start, end)
     tracks, seconds = run_tracking(
         video, mask=mask, step=step, start=start, end=end, method=method, quiet=quiet
     )

@@ -1,16 +1,15 @@
 """``moju view``: the service's result viewer as one standalone HTML file.
 
 The file holds everything it needs (plotly.js from the installed ``plotly`` package, the
-viewer's script and style from ``service/static/``, and the result's frames as JSON), so it
-opens in a browser without a server and without internet access. The data come from
-:mod:`moju_core.viewer`, as for the service's viewer-data endpoints, so the file shows what
+viewer's script and style from :mod:`moju_viewer.assets`, and the result's frames as JSON), so
+it opens in a browser without a server and without internet access. The data come from
+:mod:`moju_viewer.data`, as for the service's viewer-data endpoints, so the file shows what
 the web page shows.
 """
 
 from __future__ import annotations
 
 import html
-import importlib.resources
 import json
 from pathlib import Path
 from typing import Any
@@ -20,7 +19,8 @@ import click
 from moju_core import __version__
 from moju_core.errors import MeasurementError
 from moju_core.io import atomic_output, read_measurements
-from moju_core.viewer import DEFAULT_MAX_POINTS, ResultView, open_result, viewer_document
+from moju_viewer.assets import plotly_js_path, read_asset
+from moju_viewer.data import DEFAULT_MAX_POINTS, ResultView, open_result, viewer_document
 
 #: Points drawn over all frames together unless --max-points says otherwise: about 40 MB of
 #: HTML, which a browser opens in a few seconds. Long sequences get fewer points per frame.
@@ -85,21 +85,17 @@ def _json_text(data: Any) -> str:
 
 def _viewer_assets() -> tuple[str, str, str]:
     """plotly.js, the viewer's script and its style sheet."""
-    try:
-        from plotly.offline import get_plotlyjs
-    except ImportError:
+    plotly = plotly_js_path()
+    if plotly is None:
         raise click.ClickException(
             "moju view needs the plotly package: pip install 'moju[service]'"
-        ) from None
-    static = importlib.resources.files("service").joinpath("static")
-    viewer = static.joinpath("viewer.js").read_text(encoding="utf-8")
-    style = static.joinpath("style.css").read_text(encoding="utf-8")
-    return get_plotlyjs(), viewer, style
+        )
+    return plotly.read_text(encoding="utf-8"), read_asset("viewer.js"), read_asset("style.css")
 
 
 def standalone_html(document: dict[str, Any], *, title: str, subtitle: str) -> str:
     """The viewer as one HTML page showing ``document`` (from
-    :func:`moju_core.viewer.viewer_document`)."""
+    :func:`moju_viewer.data.viewer_document`)."""
     plotly_js, viewer_js, style = _viewer_assets()
     return _PAGE.format(
         title=html.escape(title),

@@ -1,17 +1,19 @@
 """moju_core: dense non-rigid structure from motion by MoJu (Kumar, CVPR 2019).
 
 The functional entry point is :func:`reconstruct`; parameters are :class:`SolverParams`, the
-answer is a :class:`Result`. :class:`MoJu` is the same solver as a scikit-learn estimator.
+answer is a :class:`Result` (its by-products in :class:`Diagnostics`). :class:`MoJu` is the
+same solver as a scikit-learn estimator.
 """
 
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams
-from moju_core.result import Progress, Result, Stage, StopReason
+from moju_core.result import Diagnostics, Progress, Result, Stage, StopReason
 
 __version__ = "0.1.0"
 
 __all__ = [
     "Cancelled",
+    "Diagnostics",
     "MeasurementError",
     "MoJu",
     "Progress",

@@ -32,6 +32,11 @@ class MoJu(BaseEstimator):
         Local group of every point after the last regrouping.
     n_iter_ : int
         Iterations run.
+    stop_reason_ : StopReason
+        Why the loop stopped (``"converged"``, ``"rho_max"`` or ``"max_iter"``).
+    diagnostics_ : Diagnostics
+        By-products of the solve: local groups used, where the rotations came from, the noise
+        variance of the tracks (squared units of W), the smoothness trials, ...
     result_ : Result
         Everything :func:`moju_core.reconstruct` returned (history, timings, the resolved
         parameters in ``result_.params``).
@@ -145,3 +150,5 @@ class MoJu(BaseEstimator):
         self.rotations_ = result.rotations
         self.labels_ = result.labels
         self.n_iter_ = result.n_iter
+        self.stop_reason_ = result.stop_reason
+        self.diagnostics_ = result.diagnostics

@@ -182,8 +182,8 @@ def project_observed(
         weights = observed[:, columns].astype(np.float64)  # (F, n)
         frame_normals = np.einsum("fca,fcb->fab", basis, basis)  # (F, p, p)
         normals = np.einsum("fn,fab->nab", weights, frame_normals)
-        normals += 1e-10 * np.trace(normals, axis1=1, axis2=2)[:, None, None] * np.eye(
-            basis.shape[2]
+        normals += (
+            1e-10 * np.trace(normals, axis1=1, axis2=2)[:, None, None] * np.eye(basis.shape[2])
         )
         block = trajectories[:, columns].reshape(n_frames, 3, -1) * weights[:, None, :]
         rhs = np.einsum("fca,fcn->na", basis, block)

@@ -26,6 +26,8 @@ from typing import Literal
 
 import numpy as np
 
+from moju_core.cameras.refinement import project_to_stiefel
+
 Alignment = Literal["procrustes", "global", "sign"]
 ALIGNMENTS: tuple[str, ...] = ("procrustes", "global", "sign")
 
@@ -54,16 +56,6 @@ def _check_shapes(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, 
 
 def _check_rotations(R_est: np.ndarray, R_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return _check_pair(R_est, R_true, ("R_est", "R_true"), "(F, 2, 3)", (2, 3))
-
-
-def _nearest_orthogonal(M: np.ndarray) -> np.ndarray:
-    """Orthogonal polar factor ``U V^T`` of ``M = U S V^T`` (works on stacks ``(..., m, n)``).
-
-    For a cross-covariance ``M = A^T B`` this is the orthogonal ``Q`` minimising
-    ``||A Q - B||_F`` (orthogonal Procrustes); reflections are allowed.
-    """
-    U, _, Vt = np.linalg.svd(M, full_matrices=False)
-    return U @ Vt
 
 
 def center_frames(shapes: np.ndarray) -> np.ndarray:
@@ -132,10 +124,10 @@ def align(estimate: np.ndarray, truth: np.ndarray, mode: Alignment = "procrustes
     if mode == "procrustes":
         # Cross-covariances of all frames at once, (F, 3, 3); one batched SVD.
         covariances = np.einsum("fpi,fpj->fij", estimate, truth)
-        return estimate @ _nearest_orthogonal(covariances)
+        return estimate @ project_to_stiefel(covariances)
     if mode == "global":
         covariance = np.einsum("fpi,fpj->ij", estimate, truth)
-        return estimate @ _nearest_orthogonal(covariance)
+        return estimate @ project_to_stiefel(covariance)
     if mode == "sign":
         mirrored = estimate * np.array([1.0, 1.0, -1.0])
         if _relative_errors(mirrored, truth).mean() < _relative_errors(estimate, truth).mean():
@@ -260,7 +252,7 @@ def rigid_approximation(shapes: np.ndarray, n_iter: int = 20) -> np.ndarray:
     mean_shape = centred[0]
     for _ in range(n_iter):
         covariances = np.einsum("fpi,pj->fij", centred, mean_shape)
-        aligned = centred @ _nearest_orthogonal(covariances)
+        aligned = centred @ project_to_stiefel(covariances)
         mean_shape = aligned.mean(axis=0)
     return np.broadcast_to(mean_shape, centred.shape).copy()
 
@@ -272,7 +264,7 @@ def _complete_rotations(rows: np.ndarray) -> np.ndarray:
     slightly non-orthonormal estimates are still compared as rotations; the third row is
     their cross product, which makes the determinant +1.
     """
-    orthonormal = _nearest_orthogonal(rows)
+    orthonormal = project_to_stiefel(rows)
     third = np.cross(orthonormal[:, 0], orthonormal[:, 1])
     return np.concatenate([orthonormal, third[:, None, :]], axis=1)
 
@@ -302,7 +294,7 @@ def rotation_errors_deg(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
     R_est, R_true = _check_rotations(R_est, R_true)
     stacked_est = R_est.reshape(-1, 3)
     stacked_true = R_true.reshape(-1, 3)
-    Q = _nearest_orthogonal(stacked_true.T @ stacked_est)
+    Q = project_to_stiefel(stacked_true.T @ stacked_est)
     A = _complete_rotations(R_est)
     B = _complete_rotations(R_true @ Q)
     traces = np.einsum("fij,fij->f", A, B)

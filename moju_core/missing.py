@@ -1,6 +1,6 @@
 """Measurements with unobserved entries: completion for the steps that need every entry.
 
-The ADMM loop's data term runs over the observed entries only (:mod:`moju_core.camera`,
+The ADMM loop's data term runs over the observed entries only (:mod:`moju_core.cameras.projection`,
 :mod:`moju_core.admm`), but three steps before it want a complete ``W``: the per-frame
 translation (the image of the centroid), the camera estimate (a factorisation of W) and the
 spatial features of the initial groups. The centroid of the *visible* points is biased when
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from moju_core.rotations import significant_rank, spectrum
+from moju_core.spectrum import significant_rank, spectrum
 
 #: EM sweeps of the completion. Each sweep cannot increase the misfit on the observed entries;
 #: on the synthetic faces and sheets with 30 % of the entries hidden the completed translation

@@ -36,7 +36,8 @@ from scipy.ndimage import gaussian_filter, map_coordinates
 from scipy.spatial.transform import Rotation
 
 # The grid layout of the sequences' points (one definition, in datasets).
-from moju_core.datasets import _parameter_grid, make_sequence
+from moju_core.datasets import make_sequence
+from moju_core.datasets.surfaces import parameter_grid
 
 __all__ = [
     "VIDEO_CODECS",
@@ -285,7 +286,7 @@ def _surface_uv(name: str, n_points: int) -> np.ndarray:
     ellipse, the paper and the cloth use aspect 1.4.
     """
     aspect = 1.0 / 1.3 if name.startswith("face") else 1.4
-    u, v, _ = _parameter_grid(n_points, aspect=aspect)
+    u, v, _ = parameter_grid(n_points, aspect=aspect)
     return np.stack([u, v], axis=1)
 
 

@@ -1,13 +1,25 @@
-"""What the solver returns and what it reports while it runs."""
+"""What the solver returns and what it reports while it runs.
+
+:class:`Result` is the one result type: :func:`moju_core.reconstruct` returns it,
+:func:`moju_core.io.write_result` stores it and :func:`moju_core.io.read_result` reads it
+back. Its by-products that are neither shapes nor cameras are the typed, frozen
+:class:`Diagnostics`.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
 from enum import StrEnum
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from moju_core.params import SolverParams
+
+#: How the rotations of a solve were obtained: supplied (``"known"``) or estimated by one of
+#: the methods of :func:`moju_core.cameras.estimate_cameras` (``"auto"`` resolves to one).
+RotationSource = Literal["known", "intersection", "windowed", "rigid"]
 
 
 class Stage(StrEnum):
@@ -29,12 +41,20 @@ class Stage(StrEnum):
 class StopReason(StrEnum):
     """Why the loop stopped, :attr:`Result.stop_reason`.
 
-    A ``str``: ``StopReason.CONVERGED == "converged"``, and result files store its value.
+    A ``str``: ``StopReason.CONVERGED == "converged"``, and result files store its value. A
+    result holds ``"converged"``, ``"rho_max"`` or ``"max_iter"``; ``"stopped"`` (the loop's
+    hook asked it to stop) is reported by the internal loop only, since
+    :func:`moju_core.reconstruct` raises :class:`~moju_core.errors.Cancelled` instead.
     """
 
     CONVERGED = "converged"
     RHO_MAX = "rho_max"
     MAX_ITER = "max_iter"
+    STOPPED = "stopped"
+
+
+#: The stop reasons a :class:`Result` can hold (not :attr:`StopReason.STOPPED`).
+RESULT_STOP_REASONS = (StopReason.CONVERGED, StopReason.RHO_MAX, StopReason.MAX_ITER)
 
 
 @dataclass(frozen=True)
@@ -59,6 +79,114 @@ class Progress:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "stage", Stage(self.stage))
+
+
+@dataclass(frozen=True)
+class RotationRigidity:
+    """How rigid the tracks look over every three frames under each candidate's rotations.
+
+    Each value is :func:`moju_core.cameras.windowed.short_time_rigidity` (unexplained energy
+    over the energy of all three-frame windows, dimensionless in [0, 1]) minus the part the
+    estimated noise explains, floored at 0. ``rotations="auto"`` keeps the windowed rotations
+    when theirs is far below the intersection method's (docs/solver.md).
+    """
+
+    intersection: float
+    windowed: float
+
+
+@dataclass(frozen=True)
+class TrajectoryBasisFit:
+    """Conditioning of the single least-squares solve of method ``"pta"``.
+
+    ``rank`` is the numerical rank of the system matrix of :func:`moju_core.pta.solve` (at
+    most 3k, k = ``trajectory_bases``); ``condition`` the ratio of its largest to its smallest
+    singular value (``inf`` when rank deficient).
+    """
+
+    rank: int
+    condition: float
+
+
+@dataclass(frozen=True)
+class Diagnostics:
+    """By-products of a solve that are neither shapes nor cameras, :attr:`Result.diagnostics`.
+
+    Attributes
+    ----------
+    n_groups_used : int
+        Local groups at the end of the loop (1 for ``"bmm"`` and ``"pta"``); below
+        ``params.n_groups`` when a regrouping merged groups.
+    rotation_source : {"known", "intersection", "windowed", "rigid"}
+        Where the rotations came from: supplied, or the estimator that produced them (what
+        ``rotations="auto"`` chose).
+    rotation_window : int or None
+        Frames per window of the windowed estimate, when it was computed; else None.
+    rotations_refined : bool
+        Whether the loop re-fitted the rotations to the shapes (windowed rotations, methods
+        other than ``"pta"``).
+    rotation_rigidity : RotationRigidity or None
+        The comparison ``rotations="auto"`` made between its candidates; None when it made
+        none.
+    noise_variance : float
+        Variance of white noise in the track coordinates estimated from the spectrum of W, in
+        squared input units (e.g. pixels^2); 0 for noise-free low-rank tracks.
+    observed_fraction : float
+        Fraction of the F x P (frame, point) entries that were observed, in (0, 1].
+    smoothness_trials : tuple of (float, float)
+        The temporal-prior weights tried when ``smoothness`` was chosen from the data, in
+        increasing order, each with its misfit (mean squared reprojection error over the mean
+        square of the projected tracks, dimensionless); empty when it was not chosen.
+    trajectory_basis : TrajectoryBasisFit or None
+        Method ``"pta"`` only: the conditioning of its solve.
+    """
+
+    n_groups_used: int
+    rotation_source: RotationSource
+    rotation_window: int | None = None
+    rotations_refined: bool = False
+    rotation_rigidity: RotationRigidity | None = None
+    noise_variance: float = 0.0
+    observed_fraction: float = 1.0
+    smoothness_trials: tuple[tuple[float, float], ...] = ()
+    trajectory_basis: TrajectoryBasisFit | None = None
+
+    def __post_init__(self) -> None:
+        if self.rotation_source not in get_args(RotationSource):
+            raise ValueError(
+                f"rotation_source is {self.rotation_source!r}; expected one of "
+                f"{', '.join(get_args(RotationSource))}"
+            )
+        trials = tuple((float(w), float(m)) for w, m in self.smoothness_trials)
+        object.__setattr__(self, "smoothness_trials", trials)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (nested dataclasses as dicts, tuples as lists once dumped)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> Diagnostics:
+        """The inverse of :meth:`to_dict`; keys this version does not know are ignored.
+
+        Raises
+        ------
+        TypeError, ValueError
+            When a field without a default is missing or a value has the wrong form.
+        """
+        known = {name: values[name] for name in cls.__dataclass_fields__ if name in values}
+        rigidity = known.get("rotation_rigidity")
+        if rigidity is not None:
+            known["rotation_rigidity"] = RotationRigidity(**rigidity)
+        fit = known.get("trajectory_basis")
+        if fit is not None:
+            known["trajectory_basis"] = TrajectoryBasisFit(**fit)
+        return cls(**known)
+
+
+def _running_version() -> str:
+    from moju_core import __version__  # moju_core/__init__.py imports this module
+
+    return __version__
 
 
 @dataclass(repr=False)
@@ -89,13 +217,20 @@ class Result:
         ``"max_iter"``.
     scale : float
         The factor the tracks were divided by before solving (RMS of the centred tracks).
-    extras : dict of str to object
-        Method-specific by-products (not stored in result files).
+    diagnostics : Diagnostics or None
+        By-products of the solve (groups used, where the rotations came from, noise, ...).
+        None for results built without them and for files written before they were stored.
     visibility : ndarray of shape (F, P), bool, or None
         The observations used: True where point ``j`` was observed in frame ``f``. ``shapes``
         holds every point in every frame; where this is False, the solver filled it in. All
         True for complete data; None only for results built without it (result files then
-        store all True).
+        store all True) and for files written before it was stored.
+    version : str
+        The moju version that computed the result (for a result read from a file: that wrote
+        the file).
+    metadata : dict of str to object
+        What the caller stored with the result (:func:`moju_core.io.write_result`'s
+        ``metadata``: job id, input name, ...); empty for a fresh solve.
     """
 
     shapes: np.ndarray
@@ -107,15 +242,29 @@ class Result:
     n_iter: int
     stop_reason: StopReason
     scale: float
-    extras: dict[str, object] = field(default_factory=dict)
+    diagnostics: Diagnostics | None = None
     visibility: np.ndarray | None = None
+    version: str = field(default_factory=_running_version)
+    metadata: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.stop_reason = StopReason(self.stop_reason)
+        if self.stop_reason not in RESULT_STOP_REASONS:
+            raise ValueError(f"a Result cannot have stop_reason {self.stop_reason.value!r}")
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames F."""
+        return int(self.shapes.shape[0])
+
+    @property
+    def n_points(self) -> int:
+        """Number of points P."""
+        return int(self.shapes.shape[1])
 
     def __repr__(self) -> str:
         """Sizes and a few scalars, never the arrays (those are the attributes)."""
-        n_frames, n_points = self.shapes.shape[:2]
+        n_frames, n_points = self.n_frames, self.n_points
         observed = 1.0 if self.visibility is None else float(np.mean(self.visibility))
         total = self.timings.get("total")
         seconds = "" if total is None else f", seconds={total:.3g}"

@@ -9,7 +9,7 @@ the rolling sheet 0.071 without and 0.013 at weight 10).
 
 The rule is a discrepancy principle on the signal part of the tracks. The tracks of a random
 subset of the points are first projected onto the directions of W that stand above the noise
-(the rank of :func:`moju_core.rotations.significant_rank`), so that the trial solves see
+(the rank of :func:`moju_core.spectrum.significant_rank`), so that the trial solves see
 neither noise nor the denoising that the local subspaces of the full solve provide. The loop is
 run on them, and the largest weight of :data:`SMOOTHNESS_GRID` is kept whose reprojection
 misfit exceeds the misfit without the prior by at most ``DEFORMATION_ALLOWANCE`` of their

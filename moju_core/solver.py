@@ -8,13 +8,30 @@ from collections.abc import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import __version__, admm, camera, cameras, clustering, defaults, lrr, missing, pta
+from moju_core import (
+    admm,
+    cameras,
+    clustering,
+    defaults,
+    feasibility,
+    lrr,
+    missing,
+    pta,
+)
+from moju_core.cameras import projection
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.params import SolverParams, rotation_method
 from moju_core.preprocessing import normalise
-from moju_core.result import Progress, Result
-from moju_core.rotations import noise_variance, significant_rank, spectrum
+from moju_core.result import (
+    Diagnostics,
+    Progress,
+    Result,
+    RotationRigidity,
+    StopReason,
+    TrajectoryBasisFit,
+)
 from moju_core.smoothness import choose_smoothness
+from moju_core.spectrum import noise_variance, significant_rank, spectrum
 from moju_core.validation import check_observations, check_rotations
 
 #: ``callback(progress) -> bool | None``; returning True asks the solver to stop (it then
@@ -148,6 +165,8 @@ def _reconstruct(
                 f"({n_frames}, 2, 3), or choose rotations='auto' to estimate them"
             )
         rotations = check_rotations(rotations, n_frames)
+    # Sizes first, with the messages the service gives at submission (moju_core.feasibility).
+    feasibility.check_fit(params, n_frames, n_points, has_rotations=rotations is not None)
     if observed is not None:
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
         # completion of W (moju_core.missing); the loop's data term sees the observed entries.
@@ -182,8 +201,8 @@ def _reconstruct(
     del initial  # (F, 3P): do not hold it through the loop
     params = defaults.resolve(params, n_frames, n_points, top, rotations=rotations)
     params = params.model_copy(update={"n_bases": n_bases})
-    _check_group_sizes(params, n_points)
-    _check_trajectory_bases(params, n_frames)
+    # Again with the values derived from the data.
+    feasibility.check_fit(params, n_frames, n_points, has_rotations=True)
     smoothness_trials: list[tuple[float, float]] = []
     if params.smoothness is None:
 
@@ -246,18 +265,19 @@ def _reconstruct(
         stop_reason=out.stop_reason,
         scale=scale,
         visibility=visibility,
-        extras={
-            "version": __version__,
-            "n_groups_used": out.extras["n_groups"],
-            "rotation_source": estimate.source,
-            "rotation_window": estimate.window,
-            "rotations_refined": estimate.refine and params.method != "pta",
-            "rotation_rigidity": estimate.rigidity,
-            "noise_variance": noise * scale**2,
-            "observed_fraction": float(visibility.mean()),
-            "smoothness_trials": smoothness_trials,
-            **({"pta": out.extras["pta"]} if "pta" in out.extras else {}),
-        },
+        diagnostics=Diagnostics(
+            n_groups_used=out.n_groups,
+            rotation_source=estimate.source,
+            rotation_window=estimate.window,
+            rotations_refined=estimate.refine and params.method != "pta",
+            rotation_rigidity=None
+            if estimate.rigidity is None
+            else RotationRigidity(**estimate.rigidity),
+            noise_variance=float(noise * scale**2),
+            observed_fraction=float(visibility.mean()),
+            smoothness_trials=tuple(smoothness_trials),
+            trajectory_basis=out.trajectory_basis,
+        ),
     )
 
 
@@ -287,8 +307,8 @@ def _trajectory_basis(
     stop reason is ``"converged"``.
     """
     n_frames, _, n_points = tracks.shape
-    shapes, diagnostics = pta.solve(tracks, rotations, params.trajectory_bases, observed)
-    residual = camera.project(rotations, shapes) - tracks
+    shapes, fit = pta.solve(tracks, rotations, params.trajectory_bases, observed)
+    residual = projection.project(rotations, shapes) - tracks
     if observed is not None:
         residual = residual[np.broadcast_to(observed[:, None, :], residual.shape)]
     nuclear = float(np.linalg.svd(shapes.reshape(n_frames, 3 * n_points), compute_uv=False).sum())
@@ -308,30 +328,7 @@ def _trajectory_basis(
         labels=np.zeros(n_points, dtype=np.int64),
         history={key: np.array([value]) for key, value in history.items()},
         n_iter=1,
-        stop_reason="converged",
-        extras={"n_groups": 1, "pta": diagnostics},
+        stop_reason=StopReason.CONVERGED,
+        n_groups=1,
+        trajectory_basis=TrajectoryBasisFit(rank=int(fit["rank"]), condition=fit["condition"]),
     )
-
-
-def _check_trajectory_bases(params: SolverParams, n_frames: int) -> None:
-    """Refuse a user-set PTA basis with more unknowns per point (3k) than equations (2F)."""
-    if params.method == "pta" and 3 * params.trajectory_bases > 2 * n_frames:
-        raise MeasurementError(
-            f"trajectory_bases={params.trajectory_bases} needs 3k <= 2F, i.e. at least "
-            f"{-(-3 * params.trajectory_bases // 2)} frames; the input has {n_frames}. Lower "
-            f"trajectory_bases (at most {2 * n_frames // 3}) or leave it unset"
-        )
-
-
-def _check_group_sizes(params: SolverParams, n_points: int) -> None:
-    """Refuse a user-set group count that the points cannot fill."""
-    if params.n_groups <= 1:
-        return
-    needed = params.n_groups * defaults.min_group_size(params.subspace_dim)
-    if needed > n_points:
-        raise MeasurementError(
-            f"n_groups={params.n_groups} needs at least {needed} points (groups of at least "
-            f"{defaults.min_group_size(params.subspace_dim)} for subspace_dim="
-            f"{params.subspace_dim}); the input has {n_points}. Lower n_groups or leave it "
-            "unset to derive it from the data"
-        )

@@ -176,9 +176,9 @@ def smooth_data_step(
     Parameters
     ----------
     back_projected : ndarray of shape (F, 3, P)
-        ``R_f^T W_f`` (:func:`moju_core.camera.back_project`).
+        ``R_f^T W_f`` (:func:`moju_core.cameras.projection.back_project`).
     normals : ndarray of shape (F, 3)
-        Unit viewing directions (:func:`moju_core.camera.viewing_directions`).
+        Unit viewing directions (:func:`moju_core.cameras.projection.viewing_directions`).
     target : ndarray of shape (F, 3, P), C-contiguous
         ``finv(S# + L1 / rho)``. It is used as scratch space and overwritten.
     rho : float

@@ -24,7 +24,6 @@ __all__ = [
     "check_observations",
     "check_rotations",
     "check_visibility",
-    "estimate_memory_bytes",
     "tracks_to_W",
     "with_missing",
 ]
@@ -351,9 +350,7 @@ def check_observations(
     observed = _visibility_of(W, visibility)
     if observed.all():
         return W, observed
-    check_observation_counts(
-        np.count_nonzero(observed, axis=0), np.count_nonzero(observed, axis=1)
-    )
+    check_observation_counts(np.count_nonzero(observed, axis=0), np.count_nonzero(observed, axis=1))
     return np.where(np.repeat(observed, 2, axis=0), W, 0.0), observed
 
 
@@ -581,42 +578,3 @@ def check_colors(colors: ArrayLike, n_points: int) -> np.ndarray:
             "in 0..255"
         )
     return np.ascontiguousarray(colors, dtype=np.uint8)
-
-
-#: Bytes of float64 the solver keeps per (frame, point) pair; see :func:`estimate_memory_bytes`.
-_SOLVER_BYTES_PER_FRAME_POINT = (8 * 3 + 4 * 2) * 8
-#: Interpreter, numpy/scipy/scikit-learn and the small per-group matrices.
-_SOLVER_BASE_BYTES = 128 * 2**20
-
-
-def estimate_memory_bytes(n_frames: int, n_points: int) -> int:
-    """Rough peak memory of one reconstruction of F frames and P points, in bytes.
-
-    The ADMM loop keeps about eight arrays of shape (3F, P) in float64 alive at once (the
-    trajectories S, the shape matrix S#, the multiplier L1, the local reconstruction, the
-    S-update's right-hand side and the temporaries of the SVT and of the regrouping), plus
-    about four of shape (2F, P) (the input W, its centred and scaled copy, the reprojection and
-    its residual). That is ``(8 * 3 + 4 * 2) * 8 = 256`` bytes per (frame, point) pair. The
-    per-group matrices (3F x p) and the K_g x K_g graph are small next to these; a fixed
-    128 MiB covers them and the interpreter with its numerical libraries.
-
-    The estimate is meant for admission control (refusing a job that cannot fit), not for
-    accounting; it errs on the high side.
-
-    Parameters
-    ----------
-    n_frames : int
-        Number of frames F (>= 0).
-    n_points : int
-        Number of points P (>= 0).
-
-    Returns
-    -------
-    int
-        ``256 * F * P + 128 MiB``.
-    """
-    if n_frames < 0 or n_points < 0:
-        raise ValueError(
-            f"n_frames and n_points must be >= 0, got n_frames={n_frames}, n_points={n_points}"
-        )
-    return _SOLVER_BYTES_PER_FRAME_POINT * int(n_frames) * int(n_points) + _SOLVER_BASE_BYTES

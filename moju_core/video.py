@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from moju_core.errors import VideoError, VideoTooLarge
+from moju_core.file_types import JPEG_MAGIC, PNG_MAGIC
 
 __all__ = [
     "DEFAULT_LIMITS",
@@ -34,7 +35,6 @@ __all__ = [
     "VideoLimits",
     "open_video",
     "is_video_source",
-    "sniff_video",
     "read_mask",
 ]
 
@@ -42,8 +42,6 @@ __all__ = [
 VIDEO_EXTENSIONS = (".mp4", ".webm", ".avi")
 #: Image files of an image-folder source.
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
-_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-_JPEG_MAGIC = b"\xff\xd8"
 # JPEG start-of-frame markers (the ones that carry the image size).
 _JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
 
@@ -134,19 +132,6 @@ def is_video_source(path: str | os.PathLike) -> bool:
     """True for a folder (of images) or a file named as a video (:data:`VIDEO_EXTENSIONS`)."""
     path = Path(path)
     return path.is_dir() or path.suffix.lower() in VIDEO_EXTENSIONS
-
-
-def sniff_video(head: bytes) -> str | None:
-    """The extension (of :data:`VIDEO_EXTENSIONS`) of a file starting with ``head`` (its first
-    12 bytes or more): ``.mp4`` (ISO media, ``ftyp`` box), ``.webm`` (EBML) or ``.avi``
-    (RIFF AVI); None for anything else."""
-    if head[4:8] == b"ftyp":
-        return ".mp4"
-    if head[:4] == b"\x1a\x45\xdf\xa3":
-        return ".webm"
-    if head[:4] == b"RIFF" and head[8:12] == b"AVI ":
-        return ".avi"
-    return None
 
 
 def _name(path: Path) -> str:
@@ -347,9 +332,9 @@ def _header_size(path: Path, max_bytes: int) -> tuple[int, int]:
         )
     with open(path, "rb") as handle:
         head = handle.read(24)
-        if head.startswith(_PNG_MAGIC) and head[12:16] == b"IHDR":
+        if head.startswith(PNG_MAGIC) and head[12:16] == b"IHDR":
             return struct.unpack(">II", head[16:24])
-        if head.startswith(_JPEG_MAGIC):
+        if head.startswith(JPEG_MAGIC):
             handle.seek(2)
             return _jpeg_size(handle, path)
     raise VideoError(f"{_name(path)} is not a PNG or JPEG image")
@@ -402,7 +387,7 @@ def read_mask(path: str | os.PathLike, frame_size: tuple[int, int]) -> np.ndarra
         raise VideoError(f"mask {_name(path)} does not exist")
     width, height = frame_size
     with open(path, "rb") as handle:
-        if not handle.read(8).startswith(_PNG_MAGIC):
+        if not handle.read(8).startswith(PNG_MAGIC):
             raise VideoError(f"mask {_name(path)} is not a PNG image")
     size = _header_size(path, DEFAULT_LIMITS.max_bytes)
     if size != (width, height):

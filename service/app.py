@@ -30,7 +30,7 @@ from service.errors import ServiceError
 from service.job_store import JobStore
 from service.log_setup import configure_logging
 from service.retention import sweep
-from service.routes import downloads, health, jobs, viewer
+from service.routes import api_docs, downloads, health, jobs, viewer
 from service.settings import Settings, get_settings
 from service.storage import JobFilesMissing, LocalStorage
 from service.validation_messages import describe_errors
@@ -207,6 +207,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=__version__,
         description=DESCRIPTION,
         lifespan=lifespan,
+        # /docs is served by service.routes.api_docs from local files; FastAPI's own pages
+        # load their scripts from a CDN.
+        docs_url=None,
+        redoc_url=None,
         openapi_tags=[
             {"name": "jobs", "description": "Submit, follow, list and delete jobs."},
             {"name": "downloads", "description": "Results of finished jobs."},
@@ -228,6 +232,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(downloads.router)
     app.include_router(health.router)
     app.include_router(viewer.router)
+    app.include_router(api_docs.router)
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:

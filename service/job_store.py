@@ -26,7 +26,7 @@ refuse; RQ needs a single Redis (or a primary with replicas) anyway.
 
 RQ runs the jobs; its own job hash (``rq:job:<id>``) is consulted only to notice jobs whose
 work horse died under a living worker before it could record an outcome (see
-:func:`reconcile`).
+:func:`reconcile`), and only through :mod:`service.rq_internals`.
 """
 
 from __future__ import annotations
@@ -45,10 +45,9 @@ from redis.asyncio import Redis as AsyncRedis
 from redis.client import Pipeline
 from redis.exceptions import WatchError
 from rq.job import Job as RQJob
-from rq.registry import StartedJobRegistry
-from rq.utils import utcparse
 
-from service.queueing import RQ_ALIVE, job_id_of_rq_job, rq_job_id
+from service.queueing import job_id_of_rq_job, rq_job_id
+from service.rq_internals import RQ_ALIVE, parse_rq_state, read_rq_state, started_rq_job_ids
 from service.schemas import JobRecord
 from service.states import ACTIVE_STATES, JobStatus
 
@@ -220,18 +219,10 @@ class Liveness(NamedTuple):
     lease: bool
 
 
-def _rq_time(value: bytes | str | None) -> float | None:
-    if not value:
-        return None
-    try:
-        return utcparse(_text(value)).replace(tzinfo=timezone.utc).timestamp()
-    except ValueError:
-        return None
-
-
 def _liveness(rq_fields: list[Any], lease: Any) -> Liveness:
-    status, started = rq_fields
-    return Liveness(_text(status), _rq_time(started), bool(lease))
+    """A job's liveness from the reply to :func:`read_rq_state` and its lease's existence."""
+    state = parse_rq_state(rq_fields)
+    return Liveness(state.status, state.started, bool(lease))
 
 
 def worker_lost(record: JobRecord, live: Liveness, lease_seconds: float) -> bool:
@@ -352,7 +343,7 @@ class JobStore:
 
     def _read_pipeline(self, pipe: Any, job_id: UUID) -> None:
         pipe.hgetall(record_key(job_id))
-        pipe.hmget(RQJob.key_for(str(job_id)), "status", "started_at")
+        read_rq_state(pipe, str(job_id))
         pipe.exists(lease_key(job_id))
 
     def _liveness_of(
@@ -361,7 +352,7 @@ class JobStore:
         """RQ's view of the job's current attempt (a retry is another RQ job), and its lease."""
         current = _text(fields.get(b"rq_job"))
         if current and current != str(job_id):
-            rq_fields = self.connection.hmget(RQJob.key_for(current), "status", "started_at")
+            rq_fields = read_rq_state(self.connection, current)
         return _liveness(rq_fields, lease)
 
     def get(
@@ -408,8 +399,7 @@ class JobStore:
             return record
         current = _text(fields.get(b"rq_job"))
         if current and current != str(job_id):
-            key = RQJob.key_for(current)
-            rq_fields = await self.async_connection.hmget(key, "status", "started_at")
+            rq_fields = await read_rq_state(self.async_connection, current)
         live = _liveness(rq_fields, lease)
         if not _needs_check(record, live, self.lease_seconds):
             return record
@@ -617,8 +607,7 @@ class JobStore:
                     key, "status", "attempts", "owner", "enqueued", "rq_job"
                 )
                 rq_job = _text(rq_job) or str(job_id)
-                live = _liveness(pipe.hmget(RQJob.key_for(rq_job), "status", "started_at"),
-                                 pipe.exists(lease))  # fmt: skip
+                live = _liveness(read_rq_state(pipe, rq_job), pipe.exists(lease))
                 if _text(status) != record.status.value or int(attempts or 0) != record.attempts:
                     return None  # it moved on since it was read
                 if not worker_lost(record, live, self.lease_seconds):
@@ -728,8 +717,7 @@ class JobStore:
         the start in the work horse; the caller reads each one (which judges, with RQ's
         start time, whether its worker is gone).
         """
-        registry = StartedJobRegistry(queue_name, connection=self.connection)
-        rq_ids = registry.get_job_ids(cleanup=False)
+        rq_ids = started_rq_job_ids(queue_name, self.connection)
         ids = [job_id for job_id in map(job_id_of_rq_job, rq_ids) if job_id is not None]
         if not ids:
             return []

@@ -15,19 +15,13 @@ from rq import Queue, Worker
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job as RQJob
 
+from service.rq_internals import RQ_WAITING
 from service.settings import Settings
 
 logger = logging.getLogger(__name__)
 
 #: The one RQ job function; see :func:`worker.jobs.run_reconstruction`.
 WORKER_FUNCTION = "worker.jobs.run_reconstruction"
-
-#: RQ statuses of a job no worker has taken yet (it can still be taken out of the queue).
-RQ_WAITING = frozenset(
-    {"created", "queued", "deferred", "scheduled", "rate_limited", "ready_to_enqueue"}
-)
-#: RQ statuses of a job that is waiting or being run: RQ does not think it has ended.
-RQ_ALIVE = RQ_WAITING | {"started"}
 
 
 def rq_job_id(job_id: UUID, times_queued: int) -> str:

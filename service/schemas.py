@@ -14,7 +14,7 @@ from uuid import UUID
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator
 
 from moju_core.params import SolverParams
-from moju_core.result import Stage, StopReason
+from moju_core.result import RESULT_STOP_REASONS, Stage, StopReason
 from service.states import JobStatus
 
 _EXAMPLE_ID = "0b7e9f6c-3a51-4f0e-9d7c-2c1e8a4b5d60"
@@ -150,7 +150,9 @@ class ResultSummary(BaseModel):
 
     n_iter: int = Field(description="ADMM iterations run.", examples=[120])
     stop_reason: StopReason = Field(
-        description="Why the loop stopped: " + ", ".join(StopReason) + ".", examples=["converged"]
+        description="Why the loop stopped: " + ", ".join(RESULT_STOP_REASONS) + ".",
+        json_schema_extra={"enum": list(RESULT_STOP_REASONS)},
+        examples=["converged"],
     )
     timings: dict[str, float] = Field(
         description="Seconds per solver stage.", examples=[{"total": 1.2}]

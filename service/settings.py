@@ -18,11 +18,8 @@ MIB = 2**20
 GIB = 2**30
 
 
-def describe_bytes(n_bytes: int) -> str:
-    """A size for a message: MiB below one GiB, else GiB with one decimal."""
-    if n_bytes < GIB:
-        return f"{n_bytes / MIB:.0f} MiB"
-    return f"{n_bytes / GIB:.1f} GiB"
+#: The setting that bounds a job's estimated solver memory, named in refusals.
+WORKER_MEMORY_SETTING = "MOJU_WORKER_MEMORY_BYTES"
 
 
 class Settings(BaseSettings):
@@ -97,7 +94,7 @@ class Settings(BaseSettings):
         ),
         description=(
             "Memory a worker may spend on one job: a job whose estimated solver memory "
-            "(moju_core.validation.estimate_memory_bytes) is larger is refused at submission "
+            "(moju_core.feasibility.estimate_memory_bytes) is larger is refused at submission "
             "with 413 (and by a worker that takes it anyway)."
         ),
     )

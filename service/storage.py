@@ -41,14 +41,12 @@ import numpy as np
 
 from moju_core.io import (
     Measurements,
-    ResultFile,
     atomic_output,
     read_measurements,
     read_result,
     write_measurements,
     write_result,
 )
-from moju_core.params import SolverParams
 from moju_core.result import Result
 from moju_core.tracking import Tracks, write_tracks
 from moju_core.video import VIDEO_EXTENSIONS
@@ -111,9 +109,7 @@ class Storage(Protocol):
     ) -> None:
         """Store a job's result atomically."""
 
-    def write_video(
-        self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path
-    ) -> None:
+    def write_video(self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path) -> None:
         """Move an uploaded video (and its mask and first frame) into the job's area."""
 
     def video_files(self, job_id: UUID) -> tuple[Path, Path | None]:
@@ -131,7 +127,7 @@ class Storage(Protocol):
     def has_result(self, job_id: UUID) -> bool:
         """True when the job's result is stored."""
 
-    def read_result(self, job_id: UUID) -> ResultFile:
+    def read_result(self, job_id: UUID) -> Result:
         """Read a job's result."""
 
     def result_file(self, job_id: UUID, file_format: ResultFormat) -> Path:
@@ -202,9 +198,7 @@ class LocalStorage:
             self._existing_directory(job_id) / RESULT_NAMES["h5"], result, metadata=metadata
         )
 
-    def write_video(
-        self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path
-    ) -> None:
+    def write_video(self, job_id: UUID, video: Path, mask: Path | None, first_frame: Path) -> None:
         """Move the staged files in as ``video.<ext>``, ``mask.png`` and ``first_frame.png``."""
         directory = self._existing_directory(job_id)
         name = f"video{video.suffix.lower()}"
@@ -248,7 +242,7 @@ class LocalStorage:
         """True when ``result.h5`` exists."""
         return (self._directory(job_id) / RESULT_NAMES["h5"]).is_file()
 
-    def read_result(self, job_id: UUID) -> ResultFile:
+    def read_result(self, job_id: UUID) -> Result:
         """Read ``result.h5``."""
         path = self._directory(job_id) / RESULT_NAMES["h5"]
         if not path.is_file():
@@ -266,8 +260,7 @@ class LocalStorage:
         if not npz_path.is_file():
             # Two concurrent first downloads both convert; each rename is atomic, so either
             # copy wins and both are identical.
-            stored = read_result(h5_path)
-            write_result(npz_path, _as_result(stored), metadata=stored.metadata)
+            write_result(npz_path, read_result(h5_path))  # with the stored metadata
         return npz_path
 
     @contextlib.contextmanager
@@ -339,19 +332,3 @@ class LocalStorage:
                 continue
             if entry.is_dir() and str(job_id) == entry.name:
                 yield job_id, modified
-
-
-def _as_result(stored: ResultFile) -> Result:
-    """Turn a result read from disk back into a :class:`Result` so it can be re-written."""
-    return Result(
-        shapes=stored.shapes,
-        rotations=stored.rotations,
-        labels=stored.labels,
-        history=stored.history,
-        timings=stored.timings,
-        params=SolverParams.model_validate(stored.params),
-        n_iter=stored.n_iter,
-        stop_reason=stored.stop_reason,
-        scale=stored.scale,
-        visibility=stored.visibility,
-    )

@@ -24,15 +24,14 @@ from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 from starlette.requests import Request
 
-from moju_core import defaults
+from moju_core import feasibility, file_types
 from moju_core.errors import MeasurementError, MeasurementTooLarge
 from moju_core.io import Measurements, read_measurements
 from moju_core.params import SolverParams, rotation_method
-from moju_core.rotations import min_frames_for_bases
-from moju_core.validation import estimate_memory_bytes, tracks_to_W
+from moju_core.validation import tracks_to_W
 from service.errors import BodyTimeout, InvalidInput, UnsupportedMediaType, UploadTooLarge
 from service.schemas import InputSummary, TracksBody
-from service.settings import Settings, describe_bytes
+from service.settings import WORKER_MEMORY_SETTING, Settings
 from service.validation_messages import describe_errors
 from service.video_uploads import StagedVideo, stage_video, video_extension
 
@@ -168,12 +167,11 @@ def _display_name(filename: str | None) -> str | None:
 def _file_format(upload: UploadFile) -> str:
     """npz, h5 or csv: by the first bytes (as moju_core.io does), then by the file name."""
     upload.file.seek(0)
-    magic = upload.file.read(8)
+    head = upload.file.read(file_types.HEAD_BYTES)
     upload.file.seek(0)
-    if magic.startswith(b"PK\x03\x04"):
-        return "npz"
-    if magic.startswith(b"\x89HDF\r\n\x1a\n"):
-        return "h5"
+    found = file_types.array_file_type(head)
+    if found in ("npz", "h5"):
+        return found
     return _FILE_FORMATS.get(PurePath(upload.filename or "").suffix.lower(), "csv")
 
 
@@ -265,9 +263,7 @@ async def _video_submission(
         stage_video, upload, mask, extension, filename, settings
     )
     try:
-        check_params_fit(
-            params, staged.summary.frames, staged.summary.points, has_rotations=False
-        )
+        check_params_fit(params, staged.summary.frames, staged.summary.points, has_rotations=False)
     except BaseException:
         staged.close()
         raise
@@ -388,77 +384,27 @@ def check_params_fit(
 ) -> None:
     """Refuse parameters that cannot work on F frames and P points (HTTP 422).
 
-    The solver checks the same things when it runs, but a job refused at submission costs
-    nobody a queue slot, and the user hears at once. Only sizes are compared here; the data
-    itself is judged by the solver.
+    The solver makes the same checks (:func:`moju_core.feasibility.check_fit`) when it runs,
+    but a job refused at submission costs nobody a queue slot, and the user hears at once.
+    Only sizes are compared here; the data itself is judged by the solver.
     """
-    method = rotation_method(params.rotations, has_rotations)
-    uses_known = method == "known"
-    if not uses_known and n_frames < 3:
-        raise InvalidInput(
-            f"estimating the camera rotations (rotations '{method}') needs at least "
-            f"3 frames; the input has {n_frames}. Send more frames, or upload the rotations R "
-            "(F x 2 x 3) and use rotations 'known'"
-        )
-    uses_intersection = method in ("auto", "intersection")
-    if not uses_known and uses_intersection and params.n_bases is not None:
-        needed = min_frames_for_bases(params.n_bases)
-        if n_frames < needed or n_points < 3 * params.n_bases + 1:
-            raise InvalidInput(
-                f"n_bases={params.n_bases} needs at least {needed} frames and "
-                f"{3 * params.n_bases + 1} points to determine the rotations; the input has "
-                f"{n_frames} frames and {n_points} points. Lower n_bases or leave it unset"
-            )
-    trajectory_length = 3 * n_frames
-    grouped = params.method in ("moju", "sdg")
-    if grouped and params.subspace_dim is not None and params.subspace_dim >= trajectory_length:
-        raise InvalidInput(
-            f"subspace_dim={params.subspace_dim} must be smaller than the length of a 3D "
-            f"trajectory, 3F = {trajectory_length} for {n_frames} frames. Lower subspace_dim "
-            "or leave it unset"
-        )
-    if grouped and params.n_groups is not None and params.n_groups > 1:
-        p = params.subspace_dim or min(defaults.SUBSPACE_DIM, trajectory_length - 1)
-        group = defaults.min_group_size(p)
-        if params.n_groups * group > n_points:
-            raise InvalidInput(
-                f"n_groups={params.n_groups} needs at least {params.n_groups * group} points "
-                f"(groups of at least {group} for subspace_dim={p}); the input has {n_points}. "
-                "Lower n_groups or leave it unset to derive it from the data"
-            )
-    if params.method == "pta" and params.trajectory_bases is not None:
-        if 3 * params.trajectory_bases > 2 * n_frames:
-            raise InvalidInput(
-                f"trajectory_bases={params.trajectory_bases} needs 3k <= 2F, i.e. at least "
-                f"{-(-3 * params.trajectory_bases // 2)} frames; the input has {n_frames}. "
-                f"Lower trajectory_bases (at most {2 * n_frames // 3}) or leave it unset"
-            )
-
-
-def _memory_problem(n_frames: int, n_points: int, limit: int) -> str | None:
-    needed = estimate_memory_bytes(n_frames, n_points)
-    if needed <= limit:
-        return None
-    return (
-        f"{n_frames} frames x {n_points} points would need about "
-        f"{describe_bytes(needed)} to solve; this server's workers allow "
-        f"{describe_bytes(limit)} per job (MOJU_WORKER_MEMORY_BYTES): subsample the points "
-        "or frames"
-    )
+    try:
+        feasibility.check_fit(params, n_frames, n_points, has_rotations=has_rotations)
+    except MeasurementError as exc:
+        raise InvalidInput(str(exc)) from None
 
 
 def _admit(n_frames: int, n_points: int, *, limit: int) -> None:
     """The memory check, made by the file readers from the headers before reading data."""
-    problem = _memory_problem(n_frames, n_points, limit)
-    if problem is not None:
-        raise MeasurementTooLarge(problem)
+    feasibility.check_memory(n_frames, n_points, limit, limit_name=WORKER_MEMORY_SETTING)
 
 
 def check_memory(summary: InputSummary, limit: int) -> None:
     """Refuse a job whose estimated solver memory exceeds ``limit`` (HTTP 413)."""
-    problem = _memory_problem(summary.frames, summary.points, limit)
-    if problem is not None:
-        raise UploadTooLarge(problem)
+    try:
+        _admit(summary.frames, summary.points, limit=limit)
+    except MeasurementTooLarge as exc:
+        raise UploadTooLarge(str(exc)) from None
 
 
 async def read_submission(request: Request, settings: Settings) -> Submission:

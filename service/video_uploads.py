@@ -27,11 +27,13 @@ from pathlib import Path
 import numpy as np
 from starlette.datastructures import UploadFile
 
+from moju_core import file_types
 from moju_core.errors import VideoError, VideoTooLarge
+from moju_core.feasibility import describe_bytes
 from moju_core.tracking import DEFAULT_STEP, count_grid_points
-from moju_core.video import VideoInfo, check_clip, open_video, read_mask, sniff_video
+from moju_core.video import VideoInfo, check_clip, open_video, read_mask
 from service.schemas import InputSummary, VideoSummary
-from service.settings import Settings, describe_bytes
+from service.settings import Settings
 
 #: Largest mask PNG read (a 1920 x 1080 RGBA PNG without compression is about 8 MiB).
 MAX_MASK_BYTES = 16 * 2**20
@@ -64,9 +66,9 @@ class StagedVideo:
 def video_extension(upload: UploadFile) -> str | None:
     """``.mp4``, ``.webm`` or ``.avi`` when the upload starts like one, else None."""
     upload.file.seek(0)
-    head = upload.file.read(12)
+    head = upload.file.read(file_types.HEAD_BYTES)
     upload.file.seek(0)
-    return sniff_video(head)
+    return file_types.video_extension(head)
 
 
 def _copy(source: UploadFile, target: Path, limit: int, what: str, setting: str) -> int:

@@ -3,7 +3,7 @@
 Property-based tests (hypothesis, schemathesis) draw the same examples on every run by default,
 so that CI passes or fails on the code alone, not on what a random draw happened to try.
 ``HYPOTHESIS_PROFILE=explore python -m pytest tests/moju_core/test_io_fuzz.py`` draws fresh
-random examples to look for new failures (a session ran 2,500 per property that way).
+random examples to look for new failures (2,500 per property were once drawn that way).
 """
 
 import os

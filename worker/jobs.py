@@ -34,6 +34,7 @@ from rq import get_current_job
 from rq.timeouts import JobTimeoutException
 from threadpoolctl import threadpool_limits
 
+from moju_core import feasibility
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.io import Measurements
 from moju_core.params import rotation_method
@@ -45,13 +46,13 @@ from moju_core.tracking import (
     track_video,
     tracks_measurements,
 )
-from moju_core.validation import estimate_memory_bytes
 from service.connection import connect_redis
 from service.job_store import JobStore
 from service.schemas import JobRecord
-from service.settings import Settings, describe_bytes, get_settings
+from service.settings import WORKER_MEMORY_SETTING, Settings, get_settings
 from service.states import JobStatus
 from service.storage import LocalStorage, Storage
+from worker import rq_log
 from worker.heartbeat import Heartbeat
 from worker.progress import ProgressReporter
 
@@ -81,9 +82,12 @@ def run_reconstruction(job_id: str) -> dict[str, Any]:
     store = JobStore(connection, retention_seconds=settings.result_ttl)
     # The limit that applies is the one the API gave RQ when it enqueued the job.
     time_limit = rq_job.timeout if rq_job is not None and rq_job.timeout else None
-    return execute(
+    outcome = execute(
         UUID(job_id), store, LocalStorage(settings.data_dir), settings, time_limit=time_limit
     )
+    if rq_job is not None:  # for RQ's log line of this job (worker.rq_log)
+        rq_log.note_outcome(rq_job.id, str(outcome.get("status")))
+    return outcome
 
 
 def _summary(
@@ -241,14 +245,11 @@ def _until_redis_answers(action: Callable[[], bool], patience: float, job_id: UU
 
 
 def _memory_problem(record: JobRecord, settings: Settings) -> str | None:
-    needed = estimate_memory_bytes(record.input.frames, record.input.points)
-    if needed <= settings.worker_memory_bytes:
-        return None
-    return (
-        f"{record.input.frames} frames x {record.input.points} points would need about "
-        f"{describe_bytes(needed)} to solve; this worker allows "
-        f"{describe_bytes(settings.worker_memory_bytes)} per job (MOJU_WORKER_MEMORY_BYTES): "
-        "subsample the points or frames"
+    return feasibility.memory_problem(
+        record.input.frames,
+        record.input.points,
+        settings.worker_memory_bytes,
+        limit_name=WORKER_MEMORY_SETTING,
     )
 
 

@@ -23,6 +23,7 @@ from service.job_store import JobStore
 from service.log_setup import configure_logging
 from service.queueing import job_id_of_rq_job, job_queue
 from service.settings import Settings, get_settings
+from worker import rq_log
 
 logger = logging.getLogger(__name__)
 
@@ -113,6 +114,7 @@ def run_worker(*, burst: bool = False, name: str | None = None) -> bool:
         True when at least one job was run.
     """
     configure_logging()
+    rq_log.install()  # before forking: the work horses log RQ's line of each job
     settings = get_settings()
     if settings.worker_niceness:
         os.nice(settings.worker_niceness)  # solving yields the CPU to the API

@@ -1,4 +1,5 @@
-"""The web page (``/``, files of ``service/static/``) and the data its result viewer draws.
+"""The web page (``/``, files of ``service/static/`` and of :mod:`moju_viewer.assets`) and the
+data its result viewer draws.
 
 The page is plain HTML, CSS and JavaScript, served as files, with no build step. Its 3D plots
 are drawn by plotly.js, served from the ``plotly`` Python package installed with the service
@@ -6,15 +7,13 @@ are drawn by plotly.js, served from the ``plotly`` Python package installed with
 
 The viewer reads a finished job through two endpoints: ``viewer-data`` (point labels,
 colours, triangles, axis ranges, convergence history) and ``viewer-data/frames/{frame}``
-(one frame's points), both built by :mod:`moju_core.viewer`, the module that also feeds
+(one frame's points), both built by :mod:`moju_viewer.data`, the module that also feeds
 ``moju view``.
 """
 
 from __future__ import annotations
 
 import contextlib
-import functools
-import importlib.util
 from pathlib import Path
 from typing import Annotated
 from uuid import UUID
@@ -24,16 +23,24 @@ from fastapi import Path as PathParameter
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field
 
-from moju_core import viewer
+from moju_viewer import data as viewer
+from moju_viewer.assets import ASSET_NAMES, asset_path, plotly_js_path
 from service.deps import Caller, JobId, Services, ServicesDep, get_caller
 from service.errors import FrameOutOfRange
 from service.routes.downloads import finished_record
 from service.routes.jobs import UNAUTHORIZED
 from service.schemas import ErrorBody
 
+#: The service's own page files (the viewer's script and style come from moju_viewer).
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
 #: The files of the page, by the name they are served under (``/static/<name>``).
-PAGE_FILES = ("index.html", "app.js", "viewer.js", "style.css")
+PAGE_FILES = ("index.html", "app.js", *ASSET_NAMES)
+
+
+def page_file(name: str) -> Path:
+    """Where one of :data:`PAGE_FILES` is stored."""
+    return asset_path(name) if name in ASSET_NAMES else STATIC_DIR / name
+
 
 router = APIRouter()
 
@@ -228,19 +235,6 @@ async def index() -> FileResponse:
     return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
 
 
-@functools.cache
-def plotly_js_path() -> Path | None:
-    """``plotly.min.js`` as shipped inside the installed ``plotly`` package, or None.
-
-    Found without importing plotly: the API process needs the file, not the Python library.
-    """
-    spec = importlib.util.find_spec("plotly")
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    path = Path(spec.submodule_search_locations[0]) / "package_data" / "plotly.min.js"
-    return path if path.is_file() else None
-
-
 @router.get("/static/{name}", include_in_schema=False)
 async def static_file(name: str) -> FileResponse:
     """A file of the page, or plotly.js; only the names listed here are ever served."""
@@ -255,4 +249,4 @@ async def static_file(name: str) -> FileResponse:
         raise HTTPException(
             404, f"no file /static/{name}; the page's files are {', '.join(PAGE_FILES)}"
         )
-    return FileResponse(STATIC_DIR / name)
+    return FileResponse(page_file(name))

@@ -161,7 +161,8 @@ def test_serve_submit_and_ctrl_c_leaves_no_process(tmp_path: Path) -> None:
             "--wait", "-o", str(tmp_path / "out.npz"),
         )  # fmt: skip
         assert done.returncode == 0, done.stdout + done.stderr
-        assert "finished: 60 iterations" in done.stdout
+        assert "finished: 60 iterations, stopped: max_iter iterations reached" in done.stdout
+        assert "finished finished" not in done.stderr  # the bar names the end once
         with np.load(tmp_path / "out.npz") as result:
             assert result["shapes"].shape == (10, 300, 3)
         finished_id = done.stdout.split()[1]

@@ -152,7 +152,7 @@ def test_reconstruct_round_trip(reconstructed, sequence):
     assert stored.shapes.shape == (N_FRAMES, N_POINTS, 3)
     assert stored.rotations.shape == (N_FRAMES, 2, 3)
     assert np.isfinite(stored.shapes).all()
-    assert stored.params["rotations"] in ("intersection", "windowed")  # what "auto" chose
+    assert stored.params.rotations in ("intersection", "windowed")  # what "auto" chose
     assert stored.metadata["input"] == "full.npz"
     assert f"{N_FRAMES} frames x {N_POINTS} points: {stored.n_iter} iterations" in outcome.output
     assert str(output) in outcome.output
@@ -173,8 +173,8 @@ def test_solver_options_reach_the_solver(inputs, tmp_path):
     stored = read_result(output)
     assert stored.n_iter == 7
     assert stored.stop_reason == "max_iter"
-    assert (stored.params["max_iter"], stored.params["regroup_every"]) == (7, 2)
-    assert (stored.params["seed"], stored.params["method"]) == (3, "bmm")
+    assert (stored.params.max_iter, stored.params.regroup_every) == (7, 2)
+    assert (stored.params.seed, stored.params.method) == (3, "bmm")
     assert "e3D" not in outcome.output  # no ground truth in this input
 
 
@@ -249,7 +249,7 @@ def test_reconstruct_with_known_rotations(inputs, sequence, tmp_path):
     )
     assert outcome.exit_code == 0, outcome.output
     stored = read_result(output)
-    assert stored.params["rotations"] == "known"
+    assert stored.params.rotations == "known"
     assert_allclose(stored.rotations, sequence.rotations, atol=1e-12)
     shown = printed_scores(outcome.stdout)
     assert "rotation_error_deg" not in shown  # zero by construction, so not printed
@@ -261,7 +261,7 @@ def test_default_rotations_are_the_files_R_when_it_has_one(inputs, sequence, tmp
     outcome = run(["reconstruct", str(inputs["full"]), "-o", str(output), "-q", "--max-iter", "5"])
     assert outcome.exit_code == 0, outcome.output
     stored = read_result(output)
-    assert stored.params["rotations"] == "known"
+    assert stored.params.rotations == "known"
     assert_allclose(stored.rotations, sequence.rotations, atol=1e-12)
     assert "rotation_error_deg" not in printed_scores(outcome.stdout)
 
@@ -482,7 +482,7 @@ def test_reconstruct_hands_the_visibility_to_the_solver(occluded_input, sequence
     output = tmp_path / "result.h5"
     outcome = run(["reconstruct", str(occluded_input), "-o", str(output), "-q"])
     assert outcome.exit_code == 0, outcome.output
-    (W, visibility), = calls
+    ((W, visibility),) = calls
     assert visibility.dtype == bool
     np.testing.assert_array_equal(visibility, occlusion())
     assert np.isnan(W[np.repeat(~occlusion(), 2, axis=0)]).all()
@@ -564,7 +564,7 @@ def test_demo_writes_input_result_and_frames(tmp_path):
         assert getattr(measurements, dataset) is not None
     stored = read_result(out / "result.npz")
     assert stored.shapes.shape == (12, 300, 3)
-    assert stored.params["rotations"] in ("intersection", "windowed")  # what "auto" chose
+    assert stored.params.rotations in ("intersection", "windowed")  # what "auto" chose
     assert len(list((out / "ply").glob("*.ply"))) == 12
     expected = evaluate(
         stored.shapes, measurements.ground_truth, stored.rotations, measurements.rotations
@@ -606,7 +606,11 @@ def test_console_script_reconstructs(inputs, tmp_path):
     assert "iterating" in completed.stderr  # the progress bar goes to stderr ...
     assert "iterating" not in completed.stdout  # ... and the summary to stdout
     assert "e3D, per-frame Procrustes alignment" in completed.stdout
-    assert read_result(output).shapes.shape == (N_FRAMES, N_POINTS, 3)
+    stored = read_result(output)
+    assert stored.shapes.shape == (N_FRAMES, N_POINTS, 3)
+    # The bar ends on the shape gap, the one the stop reason is about.
+    shown = re.findall(r"shape gap=(\S+?)\]", completed.stderr)
+    assert shown and shown[-1] == f"{stored.history['gap_shape'][-1]:.1e}", completed.stderr
     assert len(list(ply_dir.glob("*.ply"))) == N_FRAMES
 
 

@@ -234,3 +234,28 @@ def test_reconstruct_video_refuses_known_rotations(files, tmp_path):
     assert outcome.exit_code == 2
     assert "a video does not have" in outcome.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_track_and_reconstruct_share_the_tracking_options() -> None:
+    """One declaration: the same names and types; reconstruct's defaults are unset."""
+    from moju_cli.solver_commands import reconstruct
+
+    track = video_commands.track
+    names = ("mask", "step", "start", "end")
+
+    def options(command):
+        return {param.name: param for param in command.params if param.name in names}
+
+    def sentence(text: str) -> str:
+        return text.split(" [default")[0].rstrip(".").lower()
+
+    tracked, reconstructed = options(track), options(reconstruct)
+    assert set(tracked) == set(reconstructed) == set(names)
+    for name in names:
+        assert tracked[name].type.to_info_dict() == reconstructed[name].type.to_info_dict(), name
+        assert reconstructed[name].default is None, name
+        assert reconstructed[name].help.startswith("Video only, as for moju track: "), name
+        # The same sentence, before the defaults each command shows its own way.
+        said = reconstructed[name].help.removeprefix("Video only, as for moju track: ")
+        assert sentence(said) == sentence(tracked[name].help), name
+    assert tracked["step"].default == 4 and tracked["start"].default == 0

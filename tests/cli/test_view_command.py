@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +21,7 @@ from moju_core import reconstruct
 from moju_core.datasets import make_sequence
 from moju_core.io import Measurements, write_measurements, write_result
 from moju_core.params import SolverParams
-
-STATIC = Path(__file__).resolve().parents[2] / "service" / "static"
+from moju_viewer.assets import read_asset
 
 
 @pytest.fixture(scope="module")
@@ -59,10 +57,10 @@ def test_writes_a_self_contained_page(files, tmp_path: Path) -> None:
     assert f"wrote {output} (10 frames, all 300 points, " in run.output
     page = output.read_text()
 
-    # Everything inline: plotly.js from the plotly package, the service's viewer and style.
+    # Everything inline: plotly.js from the plotly package, the viewer's script and style.
     assert get_plotlyjs() in page
-    assert (STATIC / "viewer.js").read_text() in page
-    assert (STATIC / "style.css").read_text() in page
+    assert read_asset("viewer.js") in page
+    assert read_asset("style.css") in page
     assert not re.search(r"""<(?:script|link|img)[^>]+(?:src|href)=["'](?!data:)""", page)
     assert page.count("</script>") == page.count("<script")
 
@@ -107,7 +105,8 @@ def test_refuses_a_mismatched_input_and_a_file_that_is_no_result(files) -> None:
 
 
 def test_says_what_to_install_without_plotly(files, tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setitem(sys.modules, "plotly.offline", None)  # import fails as if absent
+    # As if plotly were not installed: no plotly.min.js to be found.
+    monkeypatch.setattr("moju_cli.view_commands.plotly_js_path", lambda: None)
     run = CliRunner().invoke(cli, ["view", str(files["result"]), "-o", str(tmp_path / "v.html")])
     assert run.exit_code == 1
     assert "moju view needs the plotly package: pip install 'moju[service]'" in run.output
@@ -125,24 +124,13 @@ def test_embedded_data_cannot_close_its_script_element() -> None:
 
 
 def test_filled_in_points_are_marked_in_the_page(files, tmp_path: Path) -> None:
-    from moju_core.io import read_result
-    from moju_core.result import Result
+    import dataclasses
 
-    stored = read_result(files["result"])
+    from moju_core.io import read_result
+
     visibility = np.ones((10, 300), dtype=bool)
     visibility[2, 5:9] = False
-    occluded = Result(
-        shapes=stored.shapes,
-        rotations=stored.rotations,
-        labels=stored.labels,
-        history=stored.history,
-        timings=stored.timings,
-        params=SolverParams(**stored.params),
-        n_iter=stored.n_iter,
-        stop_reason=stored.stop_reason,
-        scale=stored.scale,
-        visibility=visibility,
-    )
+    occluded = dataclasses.replace(read_result(files["result"]), visibility=visibility)
     result_path = write_result(tmp_path / "occluded.h5", occluded)
     output = tmp_path / "occluded.html"
     run = CliRunner().invoke(cli, ["view", str(result_path), "-o", str(output)])

@@ -1,6 +1,6 @@
 """End-to-end accuracy of the default solver on the project's six synthetic sequences.
 
-The issue's targets, checked at 2,000 points per sequence (the benchmarks check full size):
+The accuracy goals, checked at 2,000 points per sequence (the benchmarks check full size):
 on the dense faces e3D <= 0.05 with known and <= 0.08 with estimated rotations; on the sheets
 that deform far from any rigid shape (the best rigid reconstruction scores above 0.15) e3D
 well below half of that, and below 0.05, with estimated rotations. Measured at this size with
@@ -40,5 +40,5 @@ def test_default_solver_meets_the_accuracy_targets(sequence, rotations):
         if not known:
             # Dai et al.'s shape bases do not describe these sheets: the camera step chose
             # the windowed rotations and the loop refined them.
-            assert result.extras["rotation_source"] == "windowed"
-            assert result.extras["rotations_refined"]
+            assert result.diagnostics.rotation_source == "windowed"
+            assert result.diagnostics.rotations_refined

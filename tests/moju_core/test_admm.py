@@ -1,12 +1,12 @@
-"""The ADMM loop's stopping rule: shape gap below tol (or stalled at the SVD's precision)
-and the grouping settled."""
+"""The ADMM loop: its stopping rule (shape gap below tol, or stalled at the SVD's precision,
+and the grouping settled) and the caller's hook."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from moju_core import SolverParams, clustering, reconstruct
+from moju_core import SolverParams, StopReason, admm, clustering, defaults, reconstruct
 from moju_core.datasets import make_sequence
 from moju_core.defaults import GAP_PRECISION, SETTLED_MOVE_FRACTION
 from moju_core.metrics import e3d
@@ -66,3 +66,24 @@ def test_tol_zero_turns_the_convergence_test_off() -> None:
     result = reconstruct(data.W, params, rotations=data.rotations)
     assert result.stop_reason == "max_iter" and result.n_iter == 150
     assert result.history["gap_shape"].min() < GAP_PRECISION  # the stall rule would have fired
+
+
+def test_a_hook_returning_true_stops_the_loop_after_that_iteration() -> None:
+    data = make_sequence("face1", n_points=300)
+    tracks = data.W.reshape(data.n_frames, 2, -1)
+    tracks = tracks - tracks.mean(axis=2, keepdims=True)
+    params = defaults.resolve(
+        SolverParams(rotations="known", smoothness=0.0), data.n_frames, 300, 1.0
+    )
+    seen = []
+
+    def hook(iteration: int, gap: float, rho: float) -> bool:
+        seen.append((iteration, rho))
+        return iteration == 3
+
+    out = admm.run(tracks, data.rotations, params, hook=hook)
+    assert out.stop_reason is StopReason.STOPPED and out.n_iter == 3
+    assert [iteration for iteration, _ in seen] == [1, 2, 3]
+    assert all(len(values) == 3 for values in out.history.values())
+    assert [rho for _, rho in seen] == list(out.history["rho"])  # rho grows after the test
+    assert out.shapes.shape == (data.n_frames, 3, 300) and out.labels.shape == (300,)

@@ -11,7 +11,6 @@ from moju_core.datasets import (
     HARD_SEQUENCE_NAMES,
     SEQUENCE_NAMES,
     Sequence,
-    _parameter_grid,
     add_noise,
     bumps_sequence,
     cloth_sequence,
@@ -21,6 +20,7 @@ from moju_core.datasets import (
     paper_sequence,
     roll_sequence,
 )
+from moju_core.datasets.surfaces import parameter_grid
 from moju_core.metrics import e3d, rigid_approximation
 
 SMALL = 600  # points per sequence where the full density is not what is being tested
@@ -307,7 +307,7 @@ def test_turntable_turns_2_to_5_degrees_per_frame(deformation: str) -> None:
 
 def test_flag_is_pinned_along_one_edge_with_waves_shorter_than_it() -> None:
     sequence = make_sequence("flag-osc", n_points=HARD_POINTS, seed=3)
-    u, v, _ = _parameter_grid(HARD_POINTS, aspect=1.4)
+    u, v, _ = parameter_grid(HARD_POINTS, aspect=1.4)
     moved = sequence.shapes - sequence.shapes[:1]
     # Shapes are centred per frame, so a pinned point moves only with the centroid: the whole
     # pinned edge shifts by one common vector, while the free edge spreads out.
@@ -324,7 +324,7 @@ def test_flag_is_pinned_along_one_edge_with_waves_shorter_than_it() -> None:
 
 def test_roll_turns_more_than_once_without_stretching() -> None:
     sequence = make_sequence("roll-osc", n_points=HARD_POINTS, seed=3)
-    u, v, faces = _parameter_grid(HARD_POINTS, aspect=1.4)
+    u, v, faces = parameter_grid(HARD_POINTS, aspect=1.4)
     rest = np.stack([2.0 * u, 2.0 / 1.4 * v, np.zeros_like(u)], axis=1)
     rest_lengths = np.linalg.norm(rest[faces[:, 0]] - rest[faces[:, 1]], axis=1)
     lengths = np.linalg.norm(

@@ -62,6 +62,8 @@ def test_fit_equals_reconstruct(face, known):
     assert_array_equal(model.rotations_, expected.rotations)
     assert_array_equal(model.labels_, expected.labels)
     assert model.n_iter_ == expected.n_iter == 20
+    assert model.stop_reason_ is expected.stop_reason
+    assert model.diagnostics_ == expected.diagnostics
     assert model.result_.params == expected.params
     # A clone is unfitted and fits to the same answer.
     fresh = clone(model)

@@ -31,7 +31,7 @@ from moju_core.io import (
     write_result,
 )
 from moju_core.params import SolverParams
-from moju_core.result import Result
+from moju_core.result import Diagnostics, Result, RotationRigidity, TrajectoryBasisFit
 from moju_core.validation import W_to_tracks
 
 N_FRAMES, N_POINTS = 4, 6
@@ -770,14 +770,18 @@ def test_result_round_trip(tmp_path, result, suffix):
     assert set(loaded.history) == set(result.history)
     for key, values in result.history.items():
         assert_array_equal(loaded.history[key], values)
-    assert loaded.params == result.params.model_dump()
-    assert SolverParams(**loaded.params) == result.params
+    assert loaded.params == result.params
     assert loaded.timings == {"rotations": 0.5, "iterate": 2.25, "total": 3.0}
+    assert isinstance(loaded, Result) and loaded.diagnostics is None
     assert loaded.n_iter == 5 and isinstance(loaded.n_iter, int)
     assert loaded.stop_reason == "max_iter"
     assert loaded.scale == 12.5
     assert loaded.version == moju_core.__version__
     assert loaded.metadata == {"job_id": "abc", "input": "face.npz", "n_points": 6}
+    # Written again without metadata, a result read back keeps its own.
+    again = read_result(write_result(tmp_path / f"again{suffix}", loaded))
+    assert again.metadata == loaded.metadata
+    (tmp_path / f"again{suffix}").unlink()
     assert (loaded.n_frames, loaded.n_points) == (N_FRAMES, N_POINTS)
     assert [p.name for p in tmp_path.iterdir()] == [f"result{suffix}"]
 
@@ -806,6 +810,69 @@ def test_result_file_without_visibility_reads_as_none(tmp_path, result):
     with h5py.File(path, "a") as h5:
         del h5["visibility"]  # as written before the dataset existed
     assert read_result(path).visibility is None
+
+
+DIAGNOSTICS = Diagnostics(
+    n_groups_used=2,
+    rotation_source="windowed",
+    rotation_window=10,
+    rotations_refined=True,
+    rotation_rigidity=RotationRigidity(intersection=0.25, windowed=0.01),
+    noise_variance=0.5,
+    observed_fraction=0.75,
+    smoothness_trials=((0.0, 0.1), (3.0, 0.2)),
+    trajectory_basis=TrajectoryBasisFit(rank=9, condition=float("inf")),
+)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_result_diagnostics_round_trip(tmp_path, result, suffix):
+    with_diagnostics = dataclasses.replace(result, diagnostics=DIAGNOSTICS)
+    loaded = read_result(write_result(tmp_path / f"r{suffix}", with_diagnostics))
+    assert loaded.diagnostics == DIAGNOSTICS
+
+
+def _rewrite_json(path: Path, key: str, value: object) -> None:
+    """Replace one JSON document of an HDF5 result, as an older or newer writer would."""
+    with h5py.File(path, "a") as h5:
+        if value is None:
+            del h5.attrs[key]
+        else:
+            h5.attrs[key] = json.dumps(value)
+
+
+def test_result_file_with_params_that_no_longer_exist_reads(tmp_path, result):
+    path = write_result(tmp_path / "old.h5", result)
+    stored = {**result.params.model_dump(mode="json"), "retired_option": 3}
+    del stored["smoothness"]  # written before the parameter existed
+    _rewrite_json(path, "params", stored)
+    assert read_result(path).params == result.params.model_copy(update={"smoothness": None})
+
+
+def test_result_file_with_a_refused_parameter_value_is_unreadable(tmp_path, result):
+    path = write_result(tmp_path / "bad.h5", result)
+    _rewrite_json(path, "params", {**result.params.model_dump(mode="json"), "max_iter": -1})
+    with pytest.raises(ValueError, match="(?s)not a readable MoJu result file.*max_iter"):
+        read_result(path)
+
+
+@pytest.mark.parametrize(
+    "stored",
+    [None, {"rotation_source": "windowed"}, {**DIAGNOSTICS.to_dict(), "rotation_source": "x"}],
+    ids=["absent", "field-missing", "unknown-source"],
+)
+def test_result_file_without_usable_diagnostics_reads_them_as_none(tmp_path, result, stored):
+    path = write_result(tmp_path / "old.h5", dataclasses.replace(result, diagnostics=DIAGNOSTICS))
+    _rewrite_json(path, "diagnostics", stored)
+    loaded = read_result(path)
+    assert loaded.diagnostics is None
+    assert_array_equal(loaded.shapes, result.shapes)
+
+
+def test_result_file_diagnostics_ignore_unknown_keys(tmp_path, result):
+    path = write_result(tmp_path / "new.h5", dataclasses.replace(result, diagnostics=DIAGNOSTICS))
+    _rewrite_json(path, "diagnostics", {**DIAGNOSTICS.to_dict(), "added_later": 1})
+    assert read_result(path).diagnostics == DIAGNOSTICS
 
 
 def test_npz_result_loads_without_pickles(tmp_path, result):

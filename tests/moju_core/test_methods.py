@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from moju_core import SolverParams, camera, clustering, reconstruct
+from moju_core import SolverParams, clustering, reconstruct
+from moju_core.cameras import projection
 from moju_core.datasets import make_sequence
 from moju_core.metrics import e3d
 from moju_core.preprocessing import normalise
@@ -40,7 +41,7 @@ def top_singular_value(W, rotations):
     """Largest singular value of the solver's initial S# (what beta2 is relative to)."""
     centred, _ = normalise(W)
     n_frames = rotations.shape[0]
-    initial = camera.back_project(rotations, centred.reshape(n_frames, 2, -1))
+    initial = projection.back_project(rotations, centred.reshape(n_frames, 2, -1))
     return np.linalg.svd(initial.reshape(n_frames, -1), compute_uv=False)[0]
 
 

@@ -4,11 +4,12 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from moju_core import SolverParams, camera, missing, pta, reconstruct
+from moju_core import SolverParams, missing, pta, reconstruct
+from moju_core.cameras import projection
+from moju_core.cameras.refinement import project_to_stiefel
 from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.errors import MeasurementError
 from moju_core.metrics import e3d
-from moju_core.rotations import project_to_stiefel
 
 
 def _with_nan(W, visibility):
@@ -44,12 +45,12 @@ def test_completion_ignores_the_hidden_values_and_recovers_a_low_rank_w(face):
 def test_masked_data_step_leaves_hidden_entries_at_the_target():
     rng = np.random.default_rng(0)
     rotations = project_to_stiefel(rng.standard_normal((6, 2, 3)))
-    normals = camera.viewing_directions(rotations)
-    back_projected = camera.back_project(rotations, rng.standard_normal((6, 2, 9)))
+    normals = projection.viewing_directions(rotations)
+    back_projected = projection.back_project(rotations, rng.standard_normal((6, 2, 9)))
     target = rng.standard_normal((6, 3, 9))
     observed = rng.random((6, 9)) > 0.4
-    out = camera.data_step(back_projected, normals, target, 0.3, observed=observed)
-    full = camera.data_step(back_projected, normals, target, 0.3)
+    out = projection.data_step(back_projected, normals, target, 0.3, observed=observed)
+    full = projection.data_step(back_projected, normals, target, 0.3)
     assert_allclose(out[:, :, ~observed[0]][0], target[0][:, ~observed[0]])
     seen = np.broadcast_to(observed[:, None, :], out.shape)
     assert_allclose(out[seen], full[seen])
@@ -85,7 +86,7 @@ def test_complete_data_gives_bitwise_the_same_result_with_or_without_a_full_mask
         visibility=np.ones((face.n_frames, face.n_points), bool),
     )
     assert np.array_equal(plain.shapes, masked.shapes)
-    assert plain.visibility.all() and plain.extras["observed_fraction"] == 1.0
+    assert plain.visibility.all() and plain.diagnostics.observed_fraction == 1.0
 
 
 @pytest.mark.parametrize("method", ["moju", "bmm", "pta"])
@@ -97,7 +98,7 @@ def test_occluded_tracks_are_reconstructed_close_to_the_complete_solve(face, met
     assert result.shapes.shape == (face.n_frames, face.n_points, 3)
     assert np.isfinite(result.shapes).all()
     assert np.array_equal(result.visibility, visibility)
-    assert result.extras["observed_fraction"] == pytest.approx(visibility.mean())
+    assert result.diagnostics.observed_fraction == pytest.approx(visibility.mean())
     # A sweeping band over 20 % of the width and 2 % dropout: at most 1.5x the error.
     assert e3d(result.shapes, face.shapes) < 1.5 * e3d(complete.shapes, face.shapes) + 0.005
 

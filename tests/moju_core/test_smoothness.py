@@ -6,7 +6,7 @@ import pytest
 from moju_core import SolverParams, defaults, smoothness
 from moju_core.datasets import make_sequence
 from moju_core.preprocessing import normalise
-from moju_core.rotations import significant_rank
+from moju_core.spectrum import significant_rank
 
 
 def _choose(name: str, n_points: int = 800, noise: float = 0.0, **overrides):

@@ -142,16 +142,16 @@ def test_unknown_parameters_are_rejected():
 def test_windowed_rotations_are_refined_with_the_shapes():
     # The windowed estimate follows the sheet's own turning (25 degrees off here); refining it
     # with the shapes in the loop cut e3D from 0.036 to 0.012 (same prior weight).
-    from moju_core import cameras
+    from moju_core.cameras import estimate_cameras
     from moju_core.preprocessing import normalise
 
     sheet = make_sequence("paper", n_points=1000)
-    estimate = cameras.estimate_cameras(normalise(sheet.W)[0], "windowed")
+    estimate = estimate_cameras(normalise(sheet.W)[0], "windowed")
     refined = reconstruct(sheet.W, SolverParams(rotations="windowed", smoothness=10.0))
     fixed = reconstruct(
         sheet.W, SolverParams(rotations="known", smoothness=10.0), rotations=estimate.rotations
     )
-    assert refined.extras["rotations_refined"] and not fixed.extras["rotations_refined"]
+    assert refined.diagnostics.rotations_refined and not fixed.diagnostics.rotations_refined
     assert not np.allclose(refined.rotations, estimate.rotations)
     assert np.allclose(fixed.rotations, estimate.rotations)
     assert e3d(refined.shapes, sheet.shapes) < 0.5 * e3d(fixed.shapes, sheet.shapes)
@@ -160,12 +160,12 @@ def test_windowed_rotations_are_refined_with_the_shapes():
 def test_the_temporal_prior_and_the_free_mean_shape_are_resolved_per_method(face):
     moju = reconstruct(face.W, SolverParams(max_iter=5), rotations=face.rotations)
     assert moju.params.free_mean_shape is True and moju.params.smoothness is not None
-    assert moju.extras["smoothness_trials"]
+    assert moju.diagnostics.smoothness_trials
     bmm = reconstruct(face.W, SolverParams(method="bmm", max_iter=5), rotations=face.rotations)
     assert bmm.params.free_mean_shape is False and bmm.params.smoothness == 0.0
-    assert bmm.extras["smoothness_trials"] == []
+    assert bmm.diagnostics.smoothness_trials == ()
     chosen = reconstruct(face.W, SolverParams(smoothness=3.0, max_iter=5), rotations=face.rotations)
-    assert chosen.params.smoothness == 3.0 and chosen.extras["smoothness_trials"] == []
+    assert chosen.params.smoothness == 3.0 and chosen.diagnostics.smoothness_trials == ()
 
 
 @pytest.mark.parametrize(("n_frames", "n_points"), [(60, 15), (120, 30)])
@@ -238,7 +238,7 @@ def test_unset_rotation_method_uses_given_rotations_else_estimates(face):
     np.testing.assert_allclose(given.rotations, face.rotations, atol=1e-12)
     estimated = reconstruct(face.W, SolverParams(max_iter=3))
     # Result.params names the estimator "auto" chose, and running that again repeats it.
-    assert estimated.params.rotations == estimated.extras["rotation_source"]
+    assert estimated.params.rotations == estimated.diagnostics.rotation_source
     assert estimated.params.rotations in ("intersection", "windowed")
     again = reconstruct(face.W, SolverParams(max_iter=3, rotations=estimated.params.rotations))
     assert_array_equal(again.rotations, estimated.rotations)

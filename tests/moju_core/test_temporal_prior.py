@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from moju_core import SolverParams, camera, reconstruct, temporal_prior
+from moju_core import SolverParams, reconstruct, temporal_prior
+from moju_core.cameras import projection
+from moju_core.cameras.refinement import project_to_stiefel
 from moju_core.datasets import make_sequence
-from moju_core.rotations import project_to_stiefel
 
 
 def test_second_differences_vanish_on_constant_velocity_only():
@@ -27,11 +28,11 @@ def test_smooth_data_step_solves_the_coupled_system(n_frames, weight, rho):
     rotations = project_to_stiefel(rng.standard_normal((n_frames, 2, 3)))
     tracks = rng.standard_normal((n_frames, 2, n_points))
     target = rng.standard_normal((n_frames, 3, n_points))
-    back_projected = camera.back_project(rotations, tracks)
+    back_projected = projection.back_project(rotations, tracks)
     out = np.empty_like(target)
     temporal_prior.smooth_data_step(
         back_projected,
-        camera.viewing_directions(rotations),
+        projection.viewing_directions(rotations),
         target.copy(),
         rho,
         temporal_prior.temporal_prior(n_frames, weight),
@@ -61,8 +62,10 @@ def test_smooth_data_step_solves_long_sequences_of_few_points():
     rng = np.random.default_rng(3)
     n_frames, n_points = 400, 5
     rotations = project_to_stiefel(rng.standard_normal((n_frames, 2, 3)))
-    back_projected = camera.back_project(rotations, rng.standard_normal((n_frames, 2, n_points)))
-    normals = camera.viewing_directions(rotations)
+    back_projected = projection.back_project(
+        rotations, rng.standard_normal((n_frames, 2, n_points))
+    )
+    normals = projection.viewing_directions(rotations)
     target = rng.standard_normal((n_frames, 3, n_points))
     out = np.empty_like(target)
     prior = temporal_prior.temporal_prior(n_frames, 30.0)
@@ -80,13 +83,13 @@ def test_smooth_data_step_solves_long_sequences_of_few_points():
 def test_smooth_data_step_without_weight_is_the_closed_form_step():
     rng = np.random.default_rng(1)
     rotations = project_to_stiefel(rng.standard_normal((5, 2, 3)))
-    back_projected = camera.back_project(rotations, rng.standard_normal((5, 2, 8)))
-    normals = camera.viewing_directions(rotations)
+    back_projected = projection.back_project(rotations, rng.standard_normal((5, 2, 8)))
+    normals = projection.viewing_directions(rotations)
     target = rng.standard_normal((5, 3, 8))
     out = np.empty_like(target)
     prior = temporal_prior.temporal_prior(5, 0.0)
     temporal_prior.smooth_data_step(back_projected, normals, target.copy(), 0.7, prior, out)
-    assert_allclose(out, camera.data_step(back_projected, normals, target, 0.7), atol=1e-12)
+    assert_allclose(out, projection.data_step(back_projected, normals, target, 0.7), atol=1e-12)
 
 
 def test_a_negative_or_infinite_weight_is_refused():
@@ -138,6 +141,6 @@ def test_the_loop_solves_the_prior_exactly_only_when_it_refits_the_cameras(
         SolverParams(rotations=rotations, smoothness=10.0, max_iter=5),
         rotations=data.rotations if rotations == "known" else None,
     )
-    assert result.extras["rotations_refined"] is exact
+    assert result.diagnostics.rotations_refined is exact
     assert (calls["exact"] > 0) is exact
     assert (calls["filter"] > 0) is not exact

@@ -16,7 +16,6 @@ from moju_core.validation import (
     check_measurements,
     check_observations,
     check_rotations,
-    estimate_memory_bytes,
     tracks_to_W,
     with_missing,
 )
@@ -253,24 +252,6 @@ def test_check_dtype_accepts_numbers_and_can_require_integers():
 
 
 # ---------------------------------------------------------------------------------------------
-# memory estimate
-
-
-def test_estimate_memory_bytes_follows_the_documented_formula():
-    base = estimate_memory_bytes(0, 0)
-    assert base == 128 * 2**20
-    assert estimate_memory_bytes(99, 28_880) - base == 256 * 99 * 28_880
-    # At least the eight (3F, P) float64 arrays the solver keeps.
-    assert estimate_memory_bytes(10, 1000) >= 8 * 3 * 10 * 1000 * 8
-    assert estimate_memory_bytes(20, 1000) > estimate_memory_bytes(10, 1000)
-
-
-def test_estimate_memory_bytes_rejects_negative_sizes():
-    with pytest.raises(ValueError, match="n_frames=-1"):
-        estimate_memory_bytes(-1, 10)
-
-
-# ---------------------------------------------------------------------------------------------
 # check_observations
 
 
@@ -322,8 +303,11 @@ def test_check_observations_refuses_a_disagreeing_visibility():
     W, visibility = occluded_W()
     wrong = visibility.copy()
     wrong[1, 1] = False  # W has a value there
-    with pytest.raises(MeasurementError, match=r"disagree at 1 .*frame 1, point 1: visibility "
-                       r"says it is not observed but W holds a value"):
+    with pytest.raises(
+        MeasurementError,
+        match=r"disagree at 1 .*frame 1, point 1: visibility "
+        r"says it is not observed but W holds a value",
+    ):
         check_observations(W, wrong)
     wrong = visibility.copy()
     wrong[0, 1] = True  # W is NaN there

@@ -476,3 +476,18 @@ def test_video_upload_through_the_page(
     assert size == [width, height]
     assert watched.console_errors == []
     assert watched.foreign_requests == []
+
+
+def test_api_docs_render_offline(watched: Watched, live_api: str) -> None:
+    """``/docs`` draws every operation of the API with no request to another host."""
+    page = watched.page
+    page.goto(live_api + "/docs")
+    page.wait_for_selector("#swagger-ui .opblock")
+    operations = sum(
+        1
+        for methods in httpx.get(f"{live_api}/openapi.json").json()["paths"].values()
+        for method in methods
+        if method in ("get", "post", "put", "patch", "delete")
+    )
+    assert page.locator("#swagger-ui .opblock").count() == operations
+    assert watched.foreign_requests == []

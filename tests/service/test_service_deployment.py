@@ -90,11 +90,11 @@ def test_every_setting_used_in_compose_exists() -> None:
 def test_dockerfile_copies_existing_paths_and_runs_the_api() -> None:
     lines = (REPO / "Dockerfile").read_text().splitlines()
     copies = [line.split()[1:-1] for line in lines if line.startswith("COPY ")]
-    packages = {"moju_core", "moju_cli", "service", "worker"}
+    packages = {"moju_core", "moju_viewer", "moju_cli", "service", "worker"}
     assert packages <= {source for sources in copies for source in sources}
     for sources in copies:
         for source in sources:
-            if source != "README.md":  # written by the lead; pip needs it (pyproject readme)
+            if source != "README.md":  # the project's README; pip needs it (pyproject readme)
                 assert (REPO / source).exists(), source
     cmd = next(line for line in lines if line.startswith("CMD "))
     check_command(json.loads(cmd.removeprefix("CMD ")))

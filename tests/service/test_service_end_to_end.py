@@ -10,8 +10,10 @@ import io
 import json
 import os
 import signal
+import threading
 import time
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -34,25 +36,95 @@ from moju_core.params import SolverParams
 from moju_core.ply import read_ply_points
 from service.app import create_app
 from service.client import JobFailed, MojuClient
+from service.job_store import record_key
 from service.processes import children_of
 from service.schemas import JobResource
 from service.settings import Settings
 from service.states import JobStatus
+from worker.progress import REPORT_INTERVAL
 from worker.runner import INTERRUPTED
 
-# About 1500 iterations of a 300-point problem: long enough (a few seconds) to watch the
-# progress advance, short enough for the test budget.
+# About 1500 iterations of a 300-point problem: a few seconds here, and never too short for
+# the paced reports of test_upload_run_follow_download_delete (each step lets the work horse
+# run for a few milliseconds only).
 WATCHABLE_PARAMS = {"max_iter": 1500, "tol": 0.0, "rho_growth": 1.01, "rho_max": 1e12}
+#: Progress reports the test draws out of the running job, one at a time.
+PACED_REPORTS = 3
+
+
+def _progress(redis_client: Redis, job_id) -> dict:
+    raw = redis_client.hget(record_key(job_id), "progress")
+    return json.loads(raw) if raw else {}
+
+
+def _pace_progress(
+    redis_client: Redis, worker, job_id, streamed: Callable[[int], bool], paced: list[int]
+) -> None:
+    """Draw PACED_REPORTS progress reports out of the running job, one at a time.
+
+    The work horse is held stopped (SIGSTOP) while the event stream catches up, so the test
+    counts reports the job made rather than reports a sampling stream happened to catch: how
+    fast the machine solves does not matter. The horse is stopped as soon as it iterates;
+    after each report has been streamed, and at least REPORT_INTERVAL after the previous
+    report (so that the next call of its progress callback reports), it is continued until
+    its record shows a new iteration, then stopped again.
+    """
+    horses: list[int] = []
+
+    def signal_horses(signum: int) -> None:
+        for horse in horses:
+            os.kill(horse, signum)
+
+    try:
+        wait_for(lambda: _progress(redis_client, job_id).get("stage") == "iterating",
+                 timeout=60, interval=0.002, message="the job to iterate")  # fmt: skip
+        horses.extend(children_of(worker.process.pid))
+        signal_horses(signal.SIGSTOP)
+        paced.append(_progress(redis_client, job_id)["iteration"])
+        for _ in range(PACED_REPORTS):
+            wait_for(lambda: streamed(paced[-1]), timeout=30, message="the report on the stream")
+            time.sleep(REPORT_INTERVAL)  # a lower bound: the next callback is due
+            signal_horses(signal.SIGCONT)
+            wait_for(lambda: _progress(redis_client, job_id)["iteration"] > paced[-1],
+                     timeout=30, interval=0.002, message="the next report")  # fmt: skip
+            signal_horses(signal.SIGSTOP)
+            paced.append(_progress(redis_client, job_id)["iteration"])
+        wait_for(lambda: streamed(paced[-1]), timeout=30, message="the last paced report")
+    finally:
+        signal_horses(signal.SIGCONT)
 
 
 def test_upload_run_follow_download_delete(
-    live_api: str, worker, input_file: Path, small_sequence, settings: Settings, tmp_path: Path
+    live_api: str,
+    worker,
+    input_file: Path,
+    small_sequence,
+    settings: Settings,
+    tmp_path: Path,
+    redis_client: Redis,
 ) -> None:
     seen: list[JobResource] = []
+
+    def streamed(iteration: int) -> bool:
+        return any(
+            event.progress and event.progress.stage == "iterating"
+            and event.progress.iteration == iteration
+            for event in list(seen)
+        )  # fmt: skip
+
     with MojuClient(live_api) as client:
         job = client.submit(input_file, WATCHABLE_PARAMS)
         assert job.status is JobStatus.QUEUED
-        finished = client.wait(job.id, on_progress=seen.append)
+        paced: list[int] = []
+        pacer = threading.Thread(
+            target=_pace_progress, args=(redis_client, worker, job.id, streamed, paced)
+        )
+        pacer.start()
+        try:
+            finished = client.wait(job.id, on_progress=seen.append, timeout=120)
+        finally:
+            pacer.join(timeout=120)
+        assert len(paced) == PACED_REPORTS + 1, paced
 
         # queued -> running with advancing progress -> finished, as seen on the event stream.
         statuses = [event.status for event in seen]
@@ -63,7 +135,9 @@ def test_upload_run_follow_download_delete(
             for e in seen
             if e.status is JobStatus.RUNNING and e.progress and e.progress.stage == "iterating"
         ]
-        assert len(iterating) >= 3, [e.progress for e in seen]
+        # Every paced report was streamed, in order, among whatever else the stream caught.
+        assert [i for i in iterating if i in paced] == paced, (paced, iterating)
+        assert paced == sorted(set(paced))
         assert iterating == sorted(iterating) and iterating[0] < iterating[-1]
         assert finished.progress.fraction == 1.0 and finished.progress.stage == "finished"
         assert finished.started_at is not None
@@ -141,6 +215,9 @@ def test_running_job_is_cancelled_at_its_next_iteration(
     assert final["progress"]["iteration"] < LONG_PARAMS["max_iter"]
     assert not (settings.data_dir / "jobs" / job["id"]).exists()
     assert "stopped, it is cancelled" in worker.log()
+    # RQ's own line about the job says how it ended, not "Job OK" (worker.rq_log).
+    assert f"Job ended, cancelled ({job['id']})" in worker.log()
+    assert f"Job OK ({job['id']})" not in worker.log()
 
     # The worker is free again: a small job runs to the end.
     small = client.post(
@@ -152,6 +229,8 @@ def test_running_job_is_cancelled_at_its_next_iteration(
         timeout=30,
         message="the next job to finish",
     )
+    # ... and RQ calls that one OK, as it was.
+    wait_for(lambda: f"Job OK ({small['id']})" in worker.log(), timeout=10, message="Job OK")
 
 
 def test_solver_refusal_is_reported_verbatim(live_api: str, worker) -> None:

@@ -123,10 +123,18 @@ def count_jobs(client: TestClient, settings: Settings) -> tuple[int, int]:
     ("case", "fragments"),
     [
         ("disagreeing visibility", ("W and visibility disagree", "frame 2, point 100")),
-        ("point in one frame", ("1 point(s) are observed (not NaN) in fewer than 2 frames",
-                                "point(s) 7.", "drop these points")),  # fmt: skip
-        ("frame with two points", ("1 frame(s) observe (not NaN) fewer than 3 points",
-                                   "frame(s) 4")),  # fmt: skip
+        (
+            "point in one frame",
+            (
+                "1 point(s) are observed (not NaN) in fewer than 2 frames",
+                "point(s) 7.",
+                "drop these points",
+            ),
+        ),  # fmt: skip
+        (
+            "frame with two points",
+            ("1 frame(s) observe (not NaN) fewer than 3 points", "frame(s) 4"),
+        ),  # fmt: skip
         ("half a point", ("one coordinate NaN", "x of frame 0, point 3")),
     ],
 )
@@ -275,4 +283,3 @@ def test_missing_points_end_to_end(
     np.testing.assert_array_equal(stored.visibility, occlusion())
     assert np.isfinite(stored.shapes).all()
     assert client.get(f"/v1/jobs/{job['id']}/metrics").json()["e3d_occluded_procrustes"] >= 0
-

@@ -219,8 +219,8 @@ def test_memory_limit_answers_413(settings: Settings, tmp_path: Path, redis_clie
         response = upload(client, tmp_path / "big.npz")
     assert response.status_code == 413
     assert response.json()["detail"] == (
-        "300 frames x 2000 points would need about 274 MiB to solve; this server's workers "
-        "allow 256 MiB per job (MOJU_WORKER_MEMORY_BYTES): subsample the points or frames"
+        "300 frames x 2000 points would need about 274 MiB to solve; the limit is 256 MiB "
+        "per job (MOJU_WORKER_MEMORY_BYTES): subsample the points or frames"
     )
     assert list((limited.data_dir / "jobs").iterdir()) == []
     assert redis_client.keys("*") == []
@@ -230,7 +230,7 @@ def test_worker_memory_setting_and_its_old_name(monkeypatch: pytest.MonkeyPatch)
     monkeypatch.setenv("MOJU_MAX_JOB_MEMORY_BYTES", str(2**30))
     assert Settings().worker_memory_bytes == 2**30  # the old name is still read
     monkeypatch.setenv("MOJU_WORKER_MEMORY_BYTES", str(2**31))
-    assert Settings().worker_memory_bytes == 2**31  # the name wins
+    assert Settings().worker_memory_bytes == 2**31  # the new name wins
     assert Settings(worker_memory_bytes=2**32).worker_memory_bytes == 2**32
 
 

@@ -18,7 +18,7 @@ from numpy.testing import assert_allclose
 from plotly.offline import get_plotlyjs
 
 from moju_core.io import read_result
-from service.routes.viewer import PAGE_FILES, STATIC_DIR
+from service.routes.viewer import PAGE_FILES, STATIC_DIR, page_file
 from service.settings import Settings
 from worker.jobs import execute
 
@@ -53,7 +53,7 @@ def test_page_and_its_files_are_served(client: TestClient) -> None:
         response = client.get(f"/static/{name}")
         assert response.status_code == 200, name
         assert response.headers["content-type"].startswith(types[Path(name).suffix]), name
-        assert response.content == (STATIC_DIR / name).read_bytes()
+        assert response.content == page_file(name).read_bytes()
 
     plotly = client.get("/static/plotly.min.js")
     assert plotly.status_code == 200
@@ -77,7 +77,7 @@ def test_page_refers_to_nothing_outside_the_service() -> None:
         re.IGNORECASE,
     )
     for name in PAGE_FILES:
-        text = (STATIC_DIR / name).read_text()
+        text = page_file(name).read_text()
         assert not external.search(text), f"{name}: {external.search(text).group(0)}"
     index = (STATIC_DIR / "index.html").read_text()
     scripts = re.findall(r'<script src="([^"]+)"', index)
@@ -174,9 +174,12 @@ def test_viewer_data_errors(client: TestClient, settings: Settings, input_file: 
 
 
 def test_page_files_are_package_data() -> None:
-    """pyproject ships service/static/* with the package (the page of an installed service)."""
+    """pyproject ships every page file with its package (the page of an installed service)."""
     tomllib = pytest.importorskip("tomllib", reason="tomllib needs Python 3.11")
-    pyproject = tomllib.loads((STATIC_DIR.parents[1] / "pyproject.toml").read_text())
-    patterns = pyproject["tool"]["setuptools"]["package-data"]["service"]
+    root = STATIC_DIR.parents[1]
+    pyproject = tomllib.loads((root / "pyproject.toml").read_text())
+    package_data = pyproject["tool"]["setuptools"]["package-data"]
     for name in PAGE_FILES:
-        assert any(Path("static", name).match(pattern) for pattern in patterns), name
+        relative = page_file(name).relative_to(root)
+        patterns = package_data[relative.parts[0]]
+        assert any(Path(*relative.parts[1:]).match(pattern) for pattern in patterns), name

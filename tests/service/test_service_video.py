@@ -207,9 +207,7 @@ def test_video_limits_are_named_in_the_refusal(
         redis_url=redis_url, data_dir=tmp_path / "data", cleanup_interval=0, **limit
     )
     with TestClient(create_app(settings)) as client:
-        response = post(
-            client, video_files["video"].read_bytes(), video_files["mask"].read_bytes()
-        )
+        response = post(client, video_files["video"].read_bytes(), video_files["mask"].read_bytes())
     assert response.status_code == status, response.text
     assert message in response.json()["detail"]
     assert stored_jobs(settings) == [] and list(staging.iterdir()) == []

@@ -10,13 +10,13 @@ from uuid import UUID
 import pytest
 from redis import Redis
 from rq import Queue
-from rq.job import Job as RQJob
 from rq.registry import StartedJobRegistry
 from rq.utils import utcformat
 
 from moju_core.params import SolverParams
 from service.job_store import RUNNING_KEY, JobStore, active_key, lease_key, record_key
 from service.queueing import enqueue_reconstruction, rq_job_id
+from service.rq_internals import rq_job_key
 from service.settings import Settings
 from service.states import JobStatus
 from service.storage import INPUT_NAME, LocalStorage
@@ -219,7 +219,7 @@ def _taken_by_a_worker_that_died(store: JobStore, settings: Settings, job_id: UU
     job, _ = queue.dequeue_any([queue], None, connection=connection)
     started = datetime.now(timezone.utc) - timedelta(seconds=ago)
     connection.hset(
-        RQJob.key_for(job.id), mapping={"status": "started", "started_at": utcformat(started)}
+        rq_job_key(job.id), mapping={"status": "started", "started_at": utcformat(started)}
     )
     registry = StartedJobRegistry(settings.queue_name, connection=connection)
     connection.zadd(registry.key, {f"{job.id}:deadbeef": time.time() + 60})
@@ -239,7 +239,7 @@ def test_a_job_taken_but_never_started_is_queued_again(
 
     connection = store.connection
     old = utcformat(datetime.now(timezone.utc) - timedelta(seconds=31))
-    connection.hset(RQJob.key_for(str(job_id)), "started_at", old)
+    connection.hset(rq_job_key(str(job_id)), "started_at", old)
     assert watchdog.sweep() == [job_id]
     record = store.get(job_id, reconcile_with_rq=False)
     assert record.status is JobStatus.QUEUED and record.attempts == 0

@@ -99,8 +99,8 @@ def test_worker_refuses_a_job_over_its_memory_limit(store, storage, settings, ad
     record = store.get(job_id, reconcile_with_rq=False)
     assert record.status is JobStatus.FAILED
     assert record.error == (
-        "10 frames x 300 points would need about 129 MiB to solve; this worker allows 100 MiB "
-        "per job (MOJU_WORKER_MEMORY_BYTES): subsample the points or frames"
+        "10 frames x 300 points would need about 129 MiB to solve; the limit is 100 MiB per "
+        "job (MOJU_WORKER_MEMORY_BYTES): subsample the points or frames"
     )
     assert not storage.has_result(job_id)
 
@@ -134,7 +134,7 @@ def test_missing_points_reach_the_solver_and_the_stored_result(
     monkeypatch.setattr(moju_core.solver, "reconstruct", solver)
     job_id = add_job(with_missing(face_W, visibility))
     assert execute(job_id, store, storage, settings)["status"] == "finished"
-    (W, given), = calls
+    ((W, given),) = calls
     np.testing.assert_array_equal(given, visibility)
     assert np.isnan(W[6:12, :50]).all() and np.isfinite(W[:6]).all()
     np.testing.assert_array_equal(storage.read_result(job_id).visibility, visibility)
@@ -205,5 +205,5 @@ def test_same_file_gives_the_same_rotations_from_the_cli_and_a_job(
     from_cli, from_job = read_result(output), storage.read_result(job_id)
     np.testing.assert_allclose(from_job.rotations, from_cli.rotations, rtol=0, atol=1e-12)
     resolved = store.get(job_id, reconcile_with_rq=False).result.resolved_parameters.rotations
-    assert resolved == from_cli.params["rotations"]
+    assert resolved == from_cli.params.rotations
     assert (resolved == "known") is (requested is None)
