@@ -35,6 +35,7 @@ from moju_core.cameras.windowed import (
     best_windowed_rotations,
     short_time_rigidity,
 )
+from moju_core.result import RotationSource
 from moju_core.spectrum import noise_variance, spectrum
 
 __all__ = ["AUTO_MARGIN", "CameraEstimate", "estimate_cameras"]
@@ -49,8 +50,8 @@ class CameraEstimate:
     """Rotations and how they were obtained.
 
     rotations : ndarray of shape (F, 2, 3)
-    source : str
-        ``"intersection"``, ``"windowed"`` or ``"rigid"``.
+    source : {"known", "intersection", "windowed", "rigid"}
+        Where the rotations come from (:data:`moju_core.result.RotationSource`).
     n_bases : int or None
         Shape bases of the intersection method, when it ran.
     window : int or None
@@ -63,7 +64,7 @@ class CameraEstimate:
     """
 
     rotations: np.ndarray
-    source: str
+    source: RotationSource
     n_bases: int | None = None
     window: int | None = None
     refine: bool = False
