@@ -199,6 +199,7 @@ def _reconstruct(
     initial = np.einsum("fji,fjp->fip", rotations, tracks).reshape(n_frames, 3 * n_points)
     top = lrr.top_singular_value(initial)
     del initial  # (F, 3P): do not hold it through the loop
+    derive_unshrunk = params.unshrunk_values is None
     params = defaults.resolve(params, n_frames, n_points, top, rotations=rotations)
     params = params.model_copy(update={"n_bases": n_bases})
     # Again with the values derived from the data.
@@ -220,6 +221,9 @@ def _reconstruct(
             observed=observed,
         )
         params = params.model_copy(update={"smoothness": weight})
+    if derive_unshrunk:
+        unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness)
+        params = params.model_copy(update={"unshrunk_values": unshrunk})
     features = None
     if params.method not in ("bmm", "pta") and params.n_groups > 1:
         features = clustering.track_features(centred)
