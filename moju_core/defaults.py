@@ -185,7 +185,8 @@ def resolve(
         Largest singular value of the initial shape matrix ``S# = f(pinv(R) W)`` of the
         scale-normalised tracks.
     rotations : ndarray of shape (F, 2, 3), optional
-        Camera rotations; needed only to derive ``trajectory_bases`` for method ``pta``.
+        Camera rotations; needed to derive ``trajectory_bases`` (method ``pta``) and
+        ``unshrunk_values`` (methods ``moju`` and ``sdg``).
 
     Returns
     -------
