@@ -185,7 +185,11 @@ def _reconstruct(
         estimate = cameras.CameraEstimate(rotations, "known")
     else:
         estimate = cameras.estimate_cameras(
-            centred, params.rotations, n_bases=params.n_bases, seed=params.seed, singular=singular
+            centred,
+            params.rotations,
+            n_bases=params.n_bases,
+            seed=params.seed,
+            decomposition=decomposition,
         )
         rotations = estimate.rotations
         # Result.params records what "auto" chose, so that it can be run again as it ran.
