@@ -35,7 +35,7 @@ import numpy as np
 from moju_core import clustering, grouping_steps, lrr, temporal_prior
 from moju_core.cameras import projection as camera
 from moju_core.cameras.refinement import fit_rotations_to_shapes
-from moju_core.defaults import ROTATION_REFINE_RHO
+from moju_core.defaults import EXACT_GAP_PRECISION, GAP_PRECISION, ROTATION_REFINE_RHO
 from moju_core.loop_state import (
     GroupCoefficients,
     LoopSettings,
@@ -112,6 +112,7 @@ def run(
     hook: IterationHook | None = None,
     refine_rotations: bool = False,
     observed: np.ndarray | None = None,
+    exact_data: bool = False,
 ) -> LoopOutput:
     """Run Algorithm 1 on scale-normalised, centred tracks with given rotations.
 
@@ -138,20 +139,28 @@ def run(
     observed : ndarray of shape (F, P), bool, optional
         Where the points are observed; the data term runs over these entries only (the
         tracks' values elsewhere are not used). None: all observed.
+    exact_data : bool, default False
+        With the temporal prior on, complete tracks and fixed cameras (``refine_rotations``
+        false), fit the tracks exactly and let the
+        prior set the depths only (:func:`moju_core.temporal_prior.depth_step`): for tracks
+        without measurable noise.
 
     Returns
     -------
     LoopOutput
     """
     n_frames, _, n_points = tracks.shape
-    settings = loop_settings(params, n_frames, n_points, observed, refine_rotations)
+    settings = loop_settings(
+        params, n_frames, n_points, observed, refine_rotations, exact_data=exact_data
+    )
     # S = S# = pinv(R) W, the zero-depth start: from the tracks as given, i.e. with the
     # hidden entries of a masked input at their completion (moju_core.missing).
     state = initial_state(tracks, rotations, params.rho, observed)
     if settings.local:
         initial_groups(state, settings, features)
     group_lrr = GroupCoefficients.initial(state.n_groups, n_frames, params.low_dim, params.seed)
-    stopping = StoppingTest(params.tol, params.rho_max)
+    precision = EXACT_GAP_PRECISION if settings.exact_data else GAP_PRECISION
+    stopping = StoppingTest(params.tol, params.rho_max, precision)
     history: dict[str, list[float]] = {key: [] for key in HISTORY_KEYS}
     stop_reason, iteration = StopReason.MAX_ITER, 0
     for iteration in range(1, params.max_iter + 1):
@@ -260,7 +269,11 @@ def shape_update(state: LoopState, settings: LoopSettings) -> None:
     n_frames, n_points = state.n_frames, state.n_points
     np.add(state.sharp, state.scaled, out=state.work)
     target = state.work.reshape(n_frames, 3, n_points)
-    if settings.exact_prior:
+    if settings.exact_data:
+        temporal_prior.depth_step(
+            state.back_projected, state.normals, target, state.rho, settings.prior, state.shapes
+        )
+    elif settings.exact_prior:
         if state.observed is not None:
             filled = camera.fill_unobserved(
                 state.rotations, state.tracks, state.shapes, state.observed

@@ -59,6 +59,11 @@ SETTLED_MOVE_FRACTION = 1e-2
 #: tol at iteration 145. Without this rule such runs went on to rho_max (243 iterations) with
 #: no change in e3D.
 GAP_PRECISION = 1e-8
+#: The same for a loop that fits the tracks exactly (:func:`moju_core.temporal_prior.depth_step`):
+#: nothing is shrunk away from S# once rho is large, and its Gram-matrix SVD then resolves the
+#: small singular values only to about 1e-7 (face3, 800 points: the gap stalls at 1-2e-7 from
+#: iteration 140 on, while e3D has not changed in 5 digits since iteration 100).
+EXACT_GAP_PRECISION = 1e-6
 #: Iterations without a new smallest shape gap after which a gap below ``GAP_PRECISION`` counts
 #: as converged.
 STALL_ITERATIONS = 10
@@ -83,11 +88,19 @@ MIN_DEPTH_BASIS = 3
 #: unshrunk values then keep. Started at once (0), the rule took face3 from 0.0098 to 0.0261 and
 #: face4 from 0.022 to 0.126 (with 4 values); 10, 20 and 30 gave the same on the sheets to 3 %.
 UNSHRINK_AFTER = 20
-#: Smallest temporal-prior weight with which more than the mean shape is left unshrunk: the
-#: unshrunk deformations get their depth from the prior (its cut-off, near gamma^(-1/4)
-#: radians per frame, must lie well below one). With weight 1 the rule took a 30-frame face
-#: from e3D 0.090 to 0.109 (400 points, known rotations).
-MIN_UNSHRUNK_SMOOTHNESS = 10.0
+#: Estimated noise variance of the scale-normalised tracks (relative to their mean square, by
+#: :func:`moju_core.spectrum.noise_variance`) up to which the loop fits complete tracks exactly
+#: and lets the temporal prior set the depths only (:func:`moju_core.temporal_prior.depth_step`):
+#: a noise of 0.3 % of the tracks' RMS. Noise-free synthetic tracks give 1e-15 to 3e-6, the
+#: paper's noise protocol at lambda_g = 0.002 already 2.5e-5 to 9e-5 (and 6e-4 at 0.01); above it
+#: the data term stays soft, since exact fits of noisy tracks put the noise into the depths.
+EXACT_DATA_NOISE = 1e-5
+#: Smallest temporal-prior weight taken to set the depth: with it the S# step leaves more than
+#: the mean shape unshrunk, and exact tracks are fitted exactly. Both give the depth to the
+#: prior (its cut-off, near gamma^(-1/4) radians per frame, must lie well below one). With
+#: weight 1 leaving 3 values unshrunk took a 30-frame face3 from e3D 0.090 to 0.109 (400
+#: points), and with weight 0.1 the exact fit took face1 (seed 3) from 0.0428 to 0.0451.
+MIN_DEPTH_PRIOR = 10.0
 
 
 def min_group_size(p: int) -> int:
@@ -161,8 +174,8 @@ def unshrunk_values(rotations: np.ndarray) -> int:
 
 def unshrunk_with_prior(unshrunk: int, smoothness: float) -> int:
     """The default ``unshrunk_values`` once the smoothness is known: only the mean shape (at
-    most 1) unless the prior's weight is at least :data:`MIN_UNSHRUNK_SMOOTHNESS`."""
-    return unshrunk if smoothness >= MIN_UNSHRUNK_SMOOTHNESS else min(unshrunk, 1)
+    most 1) unless the prior's weight is at least :data:`MIN_DEPTH_PRIOR`."""
+    return unshrunk if smoothness >= MIN_DEPTH_PRIOR else min(unshrunk, 1)
 
 
 def resolve(

@@ -251,6 +251,7 @@ def _reconstruct(
             hook=hook,
             refine_rotations=estimate.refine,
             observed=observed,
+            exact_data=noise <= defaults.EXACT_DATA_NOISE,
         )
     timings["iterate"] = time.perf_counter() - tic
 

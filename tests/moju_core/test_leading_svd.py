@@ -123,9 +123,10 @@ def test_small_inputs_take_the_gram_route_whatever_the_warm_start():
 
 def test_the_solve_with_the_truncated_threshold_matches_the_gram_route(monkeypatch):
     # Forced on a small problem (the loop takes the truncated route from 400 frames and points);
-    # the temporal prior's filter and the unshrunk top value (free_mean_shape) are on.
+    # the temporal prior's filter and the unshrunk top value (free_mean_shape) are on. A weight
+    # below MIN_DEPTH_PRIOR, so that the loop keeps the soft data term and the filter.
     data = make_sequence("face4", n_frames=60, n_points=150)
-    params = SolverParams(rotations="known", n_groups=1)
+    params = SolverParams(rotations="known", n_groups=1, smoothness=1.0)
     gram = reconstruct(data.W, params, rotations=data.rotations)
     calls = []
     original = leading_svd.leading_triplets

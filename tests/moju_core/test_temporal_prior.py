@@ -135,7 +135,7 @@ def test_the_loop_solves_the_prior_exactly_only_when_it_refits_the_cameras(
 
     monkeypatch.setattr(temporal_prior, "smooth_data_step", counted_step)
     monkeypatch.setattr(temporal_prior, "smoothing_filter", counted_filter)
-    data = make_sequence("paper", n_points=300)
+    data = make_sequence("paper", n_points=300, noise=0.01)  # noisy: the data term stays soft
     result = reconstruct(
         data.W,
         SolverParams(rotations=rotations, smoothness=10.0, max_iter=5),
@@ -144,3 +144,47 @@ def test_the_loop_solves_the_prior_exactly_only_when_it_refits_the_cameras(
     assert result.diagnostics.rotations_refined is exact
     assert (calls["exact"] > 0) is exact
     assert (calls["filter"] > 0) is not exact
+
+
+@pytest.mark.parametrize(("n_frames", "weight", "rho"), [(7, 2.5, 0.3), (12, 100.0, 1e-2)])
+def test_depth_step_fits_the_tracks_and_is_optimal_over_the_depths(n_frames, weight, rho):
+    rng = np.random.default_rng(n_frames)
+    n_points = 6
+    rotations = project_to_stiefel(rng.standard_normal((n_frames, 2, 3)))
+    tracks = rng.standard_normal((n_frames, 2, n_points))
+    target = rng.standard_normal((n_frames, 3, n_points))
+    normals = projection.viewing_directions(rotations)
+    prior = temporal_prior.temporal_prior(n_frames, weight)
+    out = np.empty_like(target)
+    temporal_prior.depth_step(
+        projection.back_project(rotations, tracks), normals, target, rho, prior, out
+    )
+    assert_allclose(projection.project(rotations, out), tracks, atol=1e-10)
+    # Optimality over the depths: N^T (gamma (D^T D kron I3) S + rho (S - T)) = 0.
+    difference = temporal_prior.second_differences(n_frames)
+    flat = out.reshape(n_frames, -1)
+    gradient = (weight * (difference.T @ (difference @ flat))).reshape(out.shape)
+    gradient += rho * (out - target)
+    assert_allclose(np.einsum("fc,fcp->fp", normals, gradient), 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("noise", "masked", "exact"), [(0.0, False, True), (0.01, False, False), (0.0, True, False)]
+)
+def test_the_loop_fits_exactly_only_complete_tracks_without_noise(
+    monkeypatch, noise, masked, exact
+):
+    calls = {"depth": 0}
+    real_step = temporal_prior.depth_step
+
+    def counted(*args, **kwargs):
+        calls["depth"] += 1
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(temporal_prior, "depth_step", counted)
+    data = make_sequence("paper", n_points=300, noise=noise)
+    W = data.W.copy()
+    if masked:
+        W[:2, :5] = np.nan
+    reconstruct(W, SolverParams(smoothness=10.0, max_iter=5), rotations=data.rotations)
+    assert (calls["depth"] > 0) is exact

@@ -44,7 +44,7 @@ def test_the_limited_basis_size_is_the_full_one_capped(limit: int) -> None:
 
 
 def test_a_weak_prior_leaves_only_the_mean_shape_unshrunk() -> None:
-    strong = defaults.MIN_UNSHRUNK_SMOOTHNESS
+    strong = defaults.MIN_DEPTH_PRIOR
     assert defaults.unshrunk_with_prior(4, strong) == 4
     assert defaults.unshrunk_with_prior(4, strong / 10) == 1
     assert defaults.unshrunk_with_prior(0, 0.0) == 0  # the penalised mean shape stays so
@@ -66,7 +66,7 @@ def test_user_values_are_kept_and_the_default_is_recorded() -> None:
     assert given.params.unshrunk_values == 2
     derived = reconstruct(data.W, SolverParams(), rotations=data.rotations)
     assert derived.params.unshrunk_values in range(1, defaults.MAX_UNSHRUNK_VALUES + 1)
-    if derived.params.smoothness < defaults.MIN_UNSHRUNK_SMOOTHNESS:
+    if derived.params.smoothness < defaults.MIN_DEPTH_PRIOR:
         assert derived.params.unshrunk_values == 1
     bmm = reconstruct(data.W, SolverParams(method="bmm"), rotations=data.rotations)
     assert bmm.params.unshrunk_values == 0
