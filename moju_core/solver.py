@@ -167,10 +167,12 @@ def _reconstruct(
         rotations = check_rotations(rotations, n_frames)
     # Sizes first, with the messages the service gives at submission (moju_core.feasibility).
     feasibility.check_fit(params, n_frames, n_points, has_rotations=rotations is not None)
+    model = None
     if observed is not None:
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
         # completion of W (moju_core.missing); the loop's data term sees the observed entries.
-        W, _ = missing.complete(W, observed)
+        model = missing.complete(W, observed)
+        W = model.fill(W, observed)
     centred, scale = normalise(W)
 
     report("rotations")
@@ -184,8 +186,15 @@ def _reconstruct(
     if params.rotations == "known":
         estimate = cameras.CameraEstimate(rotations, "known")
     else:
+        camera_tracks, camera_singular = centred, singular
+        if model is not None:
+            camera_tracks, camera_singular = _camera_tracks(model, observed, scale)
         estimate = cameras.estimate_cameras(
-            centred, params.rotations, n_bases=params.n_bases, seed=params.seed, singular=singular
+            camera_tracks,
+            params.rotations,
+            n_bases=params.n_bases,
+            seed=params.seed,
+            singular=camera_singular,
         )
         rotations = estimate.rotations
         # Result.params records what "auto" chose, so that it can be run again as it ran.
@@ -279,6 +288,32 @@ def _reconstruct(
             trajectory_basis=out.trajectory_basis,
         ),
     )
+
+
+#: With missing data the cameras are estimated from the points seen in at least this fraction
+#: of the frames (all points when fewer than :data:`CAMERA_MIN_POINTS` are).
+CAMERA_MIN_SEEN = 0.5
+CAMERA_MIN_POINTS = 20
+
+
+def _camera_tracks(
+    model: missing.LowRank, observed: np.ndarray, scale: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centred, normalised tracks for the camera step with missing data, and their spectrum.
+
+    The points seen in at least :data:`CAMERA_MIN_SEEN` of the frames, with their values in
+    the exact low-rank model (not the filled W: its observed entries carry the noise and the
+    rank beyond the model's, its hidden ones the model's values, and the mix is what the
+    factorisation would have to explain). The well-seen points' model is the best-determined
+    part of the completion, and the camera step then costs what it costs on complete data.
+    """
+    seen = observed.mean(axis=0) >= CAMERA_MIN_SEEN
+    if seen.sum() < CAMERA_MIN_POINTS:
+        seen = np.ones_like(seen)
+    values = model.values(np.flatnonzero(seen))
+    values -= values.mean(axis=1, keepdims=True)
+    values /= scale
+    return values, spectrum(values).singular
 
 
 def _resolve_rotation_method(params: SolverParams, given: bool) -> SolverParams:
