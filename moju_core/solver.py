@@ -173,6 +173,12 @@ def _reconstruct(
         # completion of W (moju_core.missing); the loop's data term sees the observed entries.
         model = missing.complete(W, observed)
         W = model.fill(W, observed)
+    # The entries the loop (and the smoothness trials) fit: the observed ones, and the hidden
+    # ones the low-rank model predicts well (missing.trusted_entries), at their model values.
+    fitted = observed
+    if model is not None and TRUST_COMPLETION:
+        fitted = missing.trusted_entries(model, observed)
+        fitted = None if fitted.all() else fitted
     centred, scale = normalise(W)
 
     report("rotations")
@@ -226,7 +232,7 @@ def _reconstruct(
             signal_basis,
             refine_rotations=estimate.refine,
             hook=trial_hook,
-            observed=observed,
+            observed=fitted,
         )
         params = params.model_copy(update={"smoothness": weight})
     features = None
@@ -242,7 +248,7 @@ def _reconstruct(
         return False
 
     if params.method == "pta":
-        out = _trajectory_basis(tracks, rotations, params, hook, observed)
+        out = _trajectory_basis(tracks, rotations, params, hook, fitted)
     else:
         out = admm.run(
             tracks,
@@ -251,7 +257,7 @@ def _reconstruct(
             features=features,
             hook=hook,
             refine_rotations=estimate.refine,
-            observed=observed,
+            observed=fitted,
         )
     timings["iterate"] = time.perf_counter() - tic
 
@@ -290,6 +296,8 @@ def _reconstruct(
     )
 
 
+#: Whether the loop fits the trusted hidden entries as data (see :func:`_reconstruct`).
+TRUST_COMPLETION = True
 #: With missing data the cameras are estimated from the points seen in at least this fraction
 #: of the frames (all points when fewer than :data:`CAMERA_MIN_POINTS` are).
 CAMERA_MIN_SEEN = 0.5
