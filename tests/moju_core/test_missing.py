@@ -179,17 +179,20 @@ def test_leverage_is_about_one_over_the_observed_fraction_and_large_for_a_point_
     rng = np.random.default_rng(3)
     W = _low_rank_w(rng)
     visibility = rng.random((30, 300)) > 0.3
-    visibility[3:, 0] = False  # point 0: seen in frames 0-2 only
+    visibility[:, :2] = False
+    visibility[:2, 0] = True  # point 0: frames 0-1 only, 4 rows for 4 coefficients
+    visibility[:4, 1] = True  # point 1: frames 0-3, enough for the model, extrapolated
     model = missing.complete_at_rank(W, visibility, 4)
     leverage = model.leverage(visibility)
     assert leverage.shape == visibility.shape
-    typical = np.median(leverage[:, 1:])
+    typical = np.median(leverage[:, 2:])
     assert 1.0 <= typical < 3.0
-    assert leverage[3:, 0].min() > missing.TRUSTED_LEVERAGE
+    assert leverage[2:, 0].min() > missing.TRUSTED_LEVERAGE
+    assert 10 * typical < leverage[4:, 1].min() < missing.TRUSTED_LEVERAGE
     trusted = missing.trusted_entries(model, visibility)
     assert trusted[visibility].all()
-    assert not trusted[3:, 0].any()
-    assert trusted[:, 1:].mean() > 0.95
+    assert not trusted[2:, 0].any() and trusted[:, 1].all()
+    assert trusted[:, 2:].mean() > 0.95
 
 
 def test_the_group_fill_fits_the_values_before_the_projection_with_hidden_frames_weighted():
