@@ -230,7 +230,7 @@ def iterate(
         if regroup_now and settings.adaptive and params.n_clusters < state.n_groups:
             relabelled = grouping_steps.move_trajectories(state, group_lrr, settings)  # 8
         grouping_steps.reconstruct_groups(state, regroup_now)  # 9
-    nuclear = low_rank_update(state, settings)  # 10
+    nuclear = low_rank_update(state, settings, settings.kept_at(iteration))  # 10
     if settings.adaptive:
         aux_update(group_lrr, params.beta3, state.rho)  # 11
     gap_shape, gap_coefficients = multiplier_update(
@@ -297,8 +297,9 @@ def refit_rotations(state: LoopState) -> None:
     state.normals = camera.viewing_directions(state.rotations)
 
 
-def low_rank_update(state: LoopState, settings: LoopSettings) -> float:
-    """Step 10, the S#-update: singular value thresholding of ``f(S) - L1/rho`` by beta2/rho.
+def low_rank_update(state: LoopState, settings: LoopSettings, keep: int) -> float:
+    """Step 10, the S#-update: singular value thresholding of ``f(S) - L1/rho`` by beta2/rho,
+    with the ``keep`` leading values left unshrunk.
 
     Followed by the temporal prior's filter on the frames, unless the S-update solved it
     (:mod:`moju_core.temporal_prior`). In place on ``state.sharp``.
@@ -319,7 +320,7 @@ def low_rank_update(state: LoopState, settings: LoopSettings) -> float:
         state.work,
         params.beta2 / rho,
         out=state.sharp,
-        keep=settings.kept_values,
+        keep=keep,
         left=smoothing,
         warm=state.svt_warm,
     )

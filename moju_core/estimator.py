@@ -68,6 +68,7 @@ class MoJu(BaseEstimator):
         beta3: float | None = None,
         smoothness: float | None = None,
         free_mean_shape: bool | None = None,
+        unshrunk_values: int | None = None,
         trajectory_bases: int | None = None,
         regroup_every: int = 10,
         max_iter: int = 300,
@@ -93,6 +94,7 @@ class MoJu(BaseEstimator):
         self.beta3 = beta3
         self.smoothness = smoothness
         self.free_mean_shape = free_mean_shape
+        self.unshrunk_values = unshrunk_values
         self.trajectory_bases = trajectory_bases
         self.regroup_every = regroup_every
         self.max_iter = max_iter

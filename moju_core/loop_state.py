@@ -19,7 +19,7 @@ import numpy as np
 
 from moju_core import jump, lrr, temporal_prior
 from moju_core.cameras import projection as camera
-from moju_core.defaults import SETTLED_MOVE_FRACTION, min_group_size
+from moju_core.defaults import SETTLED_MOVE_FRACTION, UNSHRINK_AFTER, min_group_size
 from moju_core.params import SolverParams
 
 
@@ -291,8 +291,11 @@ class LoopSettings:
         otherwise it filters S# (cheap, with fixed cameras; see
         :mod:`moju_core.temporal_prior` for the measurements).
     kept_values : int
-        Singular values of S# left unshrunk: 1 with ``free_mean_shape`` (the truncated
-        nuclear norm), else 0.
+        Singular values of S# left unshrunk in the first
+        :data:`~moju_core.defaults.UNSHRINK_AFTER` iterations: 1 with ``free_mean_shape`` (the
+        truncated nuclear norm), else 0.
+    unshrunk_values : int
+        Singular values of S# left unshrunk after them (``params.unshrunk_values``).
     min_size : int
         Smallest group size (:func:`moju_core.defaults.min_group_size`).
     settled_moves : int
@@ -310,10 +313,15 @@ class LoopSettings:
     prior: temporal_prior.TemporalPrior | None
     exact_prior: bool
     kept_values: int
+    unshrunk_values: int
     min_size: int
     settled_moves: int
     n_observed: int
     frame_counts: np.ndarray | None
+
+    def kept_at(self, iteration: int) -> int:
+        """Singular values of S# the S#-update leaves unshrunk at ``iteration`` (1-based)."""
+        return self.kept_values if iteration <= UNSHRINK_AFTER else self.unshrunk_values
 
 
 def loop_settings(
@@ -349,6 +357,7 @@ def loop_settings(
         prior=prior,
         exact_prior=prior is not None and refine_rotations,
         kept_values=1 if params.free_mean_shape else 0,
+        unshrunk_values=params.unshrunk_values,
         min_size=min_group_size(params.subspace_dim),
         settled_moves=int(SETTLED_MOVE_FRACTION * n_points),
         n_observed=n_frames * n_points if observed is None else int(observed.sum()),

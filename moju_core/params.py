@@ -109,6 +109,19 @@ class SolverParams(BaseModel):
             "false for 'bmm' (Dai et al. penalise all of S#). Ignored by 'pta'."
         ),
     )
+    unshrunk_values: int | None = Field(
+        None,
+        ge=0,
+        le=100,
+        description=(
+            "Leading singular values of S# left out of the nuclear norm once the loop has run "
+            "its first 20 iterations (before then: 1 with free_mean_shape, else 0). Values "
+            "left out are not shrunk, so the deformations they carry keep their depth. Unset: "
+            "'moju' and 'sdg' leave out min(k, 4) when the cameras determine a trajectory "
+            "basis of k >= 3 cosines (PTA's well-conditioned size), otherwise only the mean "
+            "shape; 'bmm' follows free_mean_shape. Ignored by 'pta'."
+        ),
+    )
     trajectory_bases: int | None = Field(
         None,
         ge=1,

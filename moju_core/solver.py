@@ -31,7 +31,7 @@ from moju_core.result import (
     TrajectoryBasisFit,
 )
 from moju_core.smoothness import choose_smoothness
-from moju_core.spectrum import noise_variance, significant_rank, spectrum
+from moju_core.spectrum import Spectrum, noise_variance, significant_rank, spectrum
 from moju_core.validation import check_observations, check_rotations
 
 #: ``callback(progress) -> bool | None``; returning True asks the solver to stop (it then
@@ -195,15 +195,15 @@ def _reconstruct(
     if params.rotations == "known":
         estimate = cameras.CameraEstimate(rotations, "known")
     else:
-        camera_tracks, camera_singular = centred, singular
+        camera_tracks, camera_decomposition = centred, decomposition
         if model is not None:
-            camera_tracks, camera_singular = _camera_tracks(model, observed, scale)
+            camera_tracks, camera_decomposition = _camera_tracks(model, observed, scale)
         estimate = cameras.estimate_cameras(
             camera_tracks,
             params.rotations,
             n_bases=params.n_bases,
             seed=params.seed,
-            singular=camera_singular,
+            decomposition=camera_decomposition,
         )
         rotations = estimate.rotations
         # Result.params records what "auto" chose, so that it can be run again as it ran.
@@ -217,6 +217,7 @@ def _reconstruct(
     initial = np.einsum("fji,fjp->fip", rotations, tracks).reshape(n_frames, 3 * n_points)
     top = lrr.top_singular_value(initial)
     del initial  # (F, 3P): do not hold it through the loop
+    derive_unshrunk = params.unshrunk_values is None
     params = defaults.resolve(params, n_frames, n_points, top, rotations=rotations)
     params = params.model_copy(update={"n_bases": n_bases})
     # Again with the values derived from the data.
@@ -238,6 +239,9 @@ def _reconstruct(
             observed=observed,
         )
         params = params.model_copy(update={"smoothness": weight})
+    if derive_unshrunk:
+        unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness)
+        params = params.model_copy(update={"unshrunk_values": unshrunk})
     features = None
     if params.method not in ("bmm", "pta") and params.n_groups > 1:
         features = clustering.track_features(centred)
@@ -309,7 +313,7 @@ CAMERA_MIN_POINTS = 20
 
 def _camera_tracks(
     model: missing.LowRank, observed: np.ndarray, scale: float
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, Spectrum]:
     """Centred, normalised tracks for the camera step with missing data, and their spectrum.
 
     The points seen in at least :data:`CAMERA_MIN_SEEN` of the frames, with their values in
@@ -324,7 +328,7 @@ def _camera_tracks(
     values = model.values(np.flatnonzero(seen))
     values -= values.mean(axis=1, keepdims=True)
     values /= scale
-    return values, spectrum(values).singular
+    return values, spectrum(values)
 
 
 def _resolve_rotation_method(params: SolverParams, given: bool) -> SolverParams:

@@ -85,7 +85,9 @@ def _n_bases_from_spectrum(s: np.ndarray, shape: tuple[int, int], max_bases: int
     return max(1, min(n_bases, max_bases, by_frames, by_points))
 
 
-def choose_n_bases(W: np.ndarray, max_bases: int = 10) -> int:
+def choose_n_bases(
+    W: np.ndarray, max_bases: int = 10, *, singular: np.ndarray | None = None
+) -> int:
     """Number of shape bases K from the singular values of W.
 
     W = Pi B has rank at most 3K, so K is read off the numerical rank r of W:
@@ -133,4 +135,6 @@ def choose_n_bases(W: np.ndarray, max_bases: int = 10) -> int:
     if max_bases < 1:
         raise ValueError(f"max_bases must be a positive integer, got {max_bases!r}")
     W = check_measurements(W)
-    return _n_bases_from_spectrum(spectrum(W).singular, W.shape, int(max_bases))
+    if singular is None:
+        singular = spectrum(W).singular
+    return _n_bases_from_spectrum(singular, W.shape, int(max_bases))

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from moju_core.cameras.bases import choose_n_bases
+from moju_core.cameras.bases import check_measurements, choose_n_bases
 from moju_core.cameras.intersection import intersection_rotations
 from moju_core.cameras.rigid import rigid_rotations
 from moju_core.cameras.windowed import (
@@ -36,7 +36,7 @@ from moju_core.cameras.windowed import (
     short_time_rigidity,
 )
 from moju_core.result import RotationSource
-from moju_core.spectrum import noise_variance, spectrum
+from moju_core.spectrum import Spectrum, noise_variance, spectrum
 
 __all__ = ["AUTO_MARGIN", "CameraEstimate", "estimate_cameras"]
 
@@ -77,7 +77,7 @@ def estimate_cameras(
     *,
     n_bases: int | None = None,
     seed: int = 0,
-    singular: np.ndarray | None = None,
+    decomposition: Spectrum | None = None,
 ) -> CameraEstimate:
     """Camera rotations of centred tracks by the named method.
 
@@ -90,8 +90,8 @@ def estimate_cameras(
         Shape bases of the intersection method; chosen from the spectrum when omitted.
     seed : int, default 0
         Seed of the intersection method's search.
-    singular : ndarray of shape (min(2F, P),), optional
-        Singular values of W, decreasing, if already computed.
+    decomposition : Spectrum, optional
+        ``spectrum(W)``, if already computed (it is computed once otherwise).
 
     Returns
     -------
@@ -106,21 +106,22 @@ def estimate_cameras(
         rigid = rigid_rotations(W)
         rotations, window, _ = best_windowed_rotations(gram, rigid)
         return CameraEstimate(rotations, "windowed", window=window, refine=True)
+    if decomposition is None:
+        decomposition = spectrum(check_measurements(W))
     if n_bases is None:
-        n_bases = choose_n_bases(W)
+        n_bases = choose_n_bases(W, singular=decomposition.singular)
     if method == "intersection" or W.shape[0] < 2 * RIGIDITY_WINDOW:
-        intersection = intersection_rotations(W, n_bases, seed=seed)
+        intersection = intersection_rotations(W, n_bases, seed=seed, decomposition=decomposition)
         return CameraEstimate(intersection, "intersection", n_bases=n_bases)
     # The intersection method's warnings (e.g. that no shape basis fits) matter only if its
     # rotations are kept.
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        intersection = intersection_rotations(W, n_bases, seed=seed)
+        intersection = intersection_rotations(W, n_bases, seed=seed, decomposition=decomposition)
     gram = RowGram(W, max(WINDOW_LENGTHS))
     rigid = rigid_rotations(W)
     windowed, window, windowed_rigidity = best_windowed_rotations(gram, rigid)
-    if singular is None:
-        singular = spectrum(W).singular
+    singular = decomposition.singular
     # Noise of variance sigma^2 leaves sigma^2 / 2 of every entry's energy unexplained.
     noise_part = 0.5 * noise_variance(singular, W.shape) * W.size / max(gram.total, 1e-300)
     excess = {

@@ -341,7 +341,9 @@ def _intersection_from_spectrum(
     return rigid_from_spectrum(spectrum)
 
 
-def intersection_rotations(W: np.ndarray, n_bases: int, *, seed: int = 0) -> np.ndarray:
+def intersection_rotations(
+    W: np.ndarray, n_bases: int, *, seed: int = 0, decomposition: Spectrum | None = None
+) -> np.ndarray:
     """Camera rotations of a deforming object by Dai, Li and He's prior-free method.
 
     1. Rank-3K factorisation ``W ~ Pi_hat B_hat`` with the singular values split evenly,
@@ -402,6 +404,8 @@ def intersection_rotations(W: np.ndarray, n_bases: int, *, seed: int = 0) -> np.
         fitted. A K above what W supports is lowered with a ``RuntimeWarning``.
     seed : int, default=0
         Seed of the random starting points of the joint fit's search.
+    decomposition : Spectrum, optional
+        ``spectrum(W)``, if the caller already has it.
 
     Returns
     -------
@@ -417,4 +421,6 @@ def intersection_rotations(W: np.ndarray, n_bases: int, *, seed: int = 0) -> np.
     """
     W = check_measurements(W)
     check_n_bases(n_bases, W.shape[0] // 2, W.shape[1])
-    return _intersection_from_spectrum(W, spectrum(W), int(n_bases), seed)
+    if decomposition is None:
+        decomposition = spectrum(W)
+    return _intersection_from_spectrum(W, decomposition, int(n_bases), seed)

@@ -74,7 +74,11 @@ def test_a_hook_returning_true_stops_the_loop_after_that_iteration() -> None:
     tracks = data.W.reshape(data.n_frames, 2, -1)
     tracks = tracks - tracks.mean(axis=2, keepdims=True)
     params = defaults.resolve(
-        SolverParams(rotations="known", smoothness=0.0), data.n_frames, 300, 1.0
+        SolverParams(rotations="known", smoothness=0.0),
+        data.n_frames,
+        300,
+        1.0,
+        rotations=data.rotations,
     )
     seen = []
 

@@ -248,7 +248,8 @@ def test_the_cameras_with_missing_data_use_the_well_seen_points_model_values():
     visibility = np.ones((30, 100), bool)
     visibility[5:, :40] = False  # points 0-39 seen in 5 of 30 frames
     model = missing.complete_at_rank(W, visibility, 4)
-    tracks, singular = solver._camera_tracks(model, visibility, 2.0)
+    tracks, decomposition = solver._camera_tracks(model, visibility, 2.0)
+    singular = decomposition.singular
     assert tracks.shape == (60, 60)
     expected = model.values(np.arange(40, 100))
     expected = (expected - expected.mean(axis=1, keepdims=True)) / 2.0

@@ -17,7 +17,11 @@ def _choose(name: str, n_points: int = 800, noise: float = 0.0, **overrides):
     initial = np.einsum("fji,fjp->fip", data.rotations, tracks).reshape(n_frames, -1)
     top = float(np.sqrt(np.linalg.eigvalsh(initial @ initial.T)[-1]))
     params = defaults.resolve(
-        SolverParams(rotations="known", **overrides), n_frames, data.n_points, top
+        SolverParams(rotations="known", **overrides),
+        n_frames,
+        data.n_points,
+        top,
+        rotations=data.rotations,
     )
     left, singular, _ = np.linalg.svd(centred, full_matrices=False)
     basis = left[:, : significant_rank(singular, centred.shape)]

@@ -1,0 +1,106 @@
+"""The unshrunk deformations of the S# step: the default rule, the switch after the first
+iterations, and the depth it lets the loop create on a turning camera."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from moju_core import SolverParams, defaults, lrr, reconstruct
+from moju_core.datasets import make_sequence
+from moju_core.loop_state import loop_settings
+from moju_core.metrics import e3d
+
+
+def _camera(yaw_degrees: np.ndarray, pitch_degrees: np.ndarray) -> np.ndarray:
+    """(F, 2, 3) orthographic cameras: the first two rows of yaw-then-pitch rotations."""
+    angles = np.stack([yaw_degrees, pitch_degrees, np.zeros_like(yaw_degrees)], axis=1)
+    return Rotation.from_euler("yxz", angles, degrees=True).as_matrix()[:, :2, :]
+
+
+@pytest.mark.parametrize("name", ["face4", "bumps-turn"])
+def test_a_slow_yaw_or_a_turntable_leaves_only_the_mean_shape_unshrunk(name: str) -> None:
+    rotations = make_sequence(name, n_points=20).rotations
+    assert defaults.trajectory_basis_size(rotations) < defaults.MIN_DEPTH_BASIS
+    assert defaults.unshrunk_values(rotations) == 1
+
+
+def test_an_oscillating_camera_leaves_the_leading_deformations_unshrunk() -> None:
+    frames = np.arange(60)
+    oscillating = _camera(
+        35 * np.sin(2 * np.pi * frames / 25), 20 * np.sin(2 * np.pi * frames / 17)
+    )
+    full = defaults.trajectory_basis_size(oscillating)
+    assert full >= defaults.MIN_DEPTH_BASIS
+    assert defaults.unshrunk_values(oscillating) == min(full, defaults.MAX_UNSHRUNK_VALUES)
+
+
+@pytest.mark.parametrize("limit", [1, 2, 3, 4, 6])
+def test_the_limited_basis_size_is_the_full_one_capped(limit: int) -> None:
+    rotations = make_sequence("face3", n_points=20).rotations
+    full = defaults.trajectory_basis_size(rotations)
+    assert defaults.trajectory_basis_size(rotations, limit=limit) == min(full, limit)
+
+
+def test_a_weak_prior_leaves_only_the_mean_shape_unshrunk() -> None:
+    strong = defaults.MIN_UNSHRUNK_SMOOTHNESS
+    assert defaults.unshrunk_with_prior(4, strong) == 4
+    assert defaults.unshrunk_with_prior(4, strong / 10) == 1
+    assert defaults.unshrunk_with_prior(0, 0.0) == 0  # the penalised mean shape stays so
+
+
+def test_the_loop_keeps_the_mean_shape_only_for_the_first_iterations() -> None:
+    params = defaults.resolve(
+        SolverParams(unshrunk_values=3, smoothness=0.0, n_groups=1), 10, 20, 1.0
+    )
+    assert params.free_mean_shape
+    settings = loop_settings(params, 10, 20, None, False)
+    after = defaults.UNSHRINK_AFTER
+    assert [settings.kept_at(i) for i in (1, after, after + 1, 300)] == [1, 1, 3, 3]
+
+
+def test_user_values_are_kept_and_the_default_is_recorded() -> None:
+    data = make_sequence("bumps-osc", n_points=200, n_frames=30)
+    given = reconstruct(data.W, SolverParams(unshrunk_values=2), rotations=data.rotations)
+    assert given.params.unshrunk_values == 2
+    derived = reconstruct(data.W, SolverParams(), rotations=data.rotations)
+    assert derived.params.unshrunk_values in range(1, defaults.MAX_UNSHRUNK_VALUES + 1)
+    if derived.params.smoothness < defaults.MIN_UNSHRUNK_SMOOTHNESS:
+        assert derived.params.unshrunk_values == 1
+    bmm = reconstruct(data.W, SolverParams(method="bmm"), rotations=data.rotations)
+    assert bmm.params.unshrunk_values == 0
+
+
+def test_the_unshrunk_step_is_the_prox_of_the_partial_sum() -> None:
+    """What the S# step computes with ``keep = k``: the minimiser of
+    ``tau * sum_{i > k} sigma_i(Y) + 0.5 ||Y - X||^2`` (checked against perturbations)."""
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal((12, 30))
+    tau, keep = 1.5, 3
+    y, _ = lrr.singular_value_threshold(x, tau, keep=keep)
+
+    def objective(candidate: np.ndarray) -> float:
+        singular = np.linalg.svd(candidate, compute_uv=False)
+        return tau * singular[keep:].sum() + 0.5 * np.sum((candidate - x) ** 2)
+
+    best = objective(y)
+    for _ in range(50):
+        assert objective(y + 1e-3 * rng.standard_normal(y.shape)) >= best - 1e-12
+
+
+def test_a_flat_sheet_is_not_a_fixed_point_on_a_turning_camera() -> None:
+    """Bumps growing and shrinking under an oscillating camera, known rotations: the zero-depth
+    start is left far behind, and the unshrunk deformations are what move it."""
+    data = make_sequence("bumps-osc", n_points=600, seed=0)
+    tracks = data.W - data.W.mean(axis=1, keepdims=True)
+    flat = np.einsum("fji,fjp->fpi", data.rotations, tracks.reshape(data.n_frames, 2, -1))
+    flat_error = e3d(flat, data.shapes)
+    params = SolverParams(smoothness=10.0, seed=0)
+    default = reconstruct(data.W, params, rotations=data.rotations)
+    assert default.params.unshrunk_values > 1
+    shrunk = reconstruct(
+        data.W, params.model_copy(update={"unshrunk_values": 1}), rotations=data.rotations
+    )
+    assert e3d(default.shapes, data.shapes) < 0.5 * flat_error
+    assert e3d(default.shapes, data.shapes) < 0.85 * e3d(shrunk.shapes, data.shapes)
