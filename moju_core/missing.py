@@ -18,7 +18,13 @@ the observed entries only (:class:`LowRank`):
   runs of consecutive frames of some points (they mimic tracks that end and occluders; random
   entries alone choose ranks too high for those patterns).
 
-Cost: O(F P r^2) per ALS sweep, O(F P r) per EM sweep; nothing F x F or P x P is formed.
+The solver also uses the model beyond the filled W: the camera step factorises the well-seen
+points' model values (:func:`moju_core.solver._camera_tracks`), and the loop fits the hidden
+entries whose prediction is reliable (:meth:`LowRank.leverage`, :func:`trusted_entries`) as if
+they were observed.
+
+Cost: O(F P r^2) per ALS sweep and for the leverage, O(F P r) per EM sweep; nothing F x F or
+P x P is formed.
 """
 
 from __future__ import annotations
