@@ -53,10 +53,12 @@ RANK_SELECTION_POINTS = 1000
 HOLD_OUT_RUN_POINTS = 0.1
 HOLD_OUT_RUN_LENGTH = 0.25
 #: Ridge of the ALS solves, per feature, relative to that feature's sum of squares over all
-#: rows. Without it the solves of weak components blew up at ranks above the data's (rolling
-#: sheet, 10 % dropout: error at the hidden entries 1.4 of the tracks' RMS at rank 12); 1e-5
-#: keeps the error at the trusted hidden entries at 0.001-0.015 of the RMS on the faces and
-#: sheets with the combined occlusion; 1e-3 and above bias the fit (0.04 on an exact rank-4 W).
+#: rows. With a negligible ridge (1e-9 of the mean diagonal) the solves of weak components blew
+#: up at ranks above the data's (rolling sheet, 10 % dropout: error at the hidden entries 1.4
+#: of the tracks' RMS at rank 12); 1e-5 keeps the error at the well-predicted hidden entries
+#: (leverage <= 30) at 0.010-0.067 of the RMS on face3, bumps-osc and paper with the combined
+#: occlusion (0.001-0.004 under dropout); 1e-3 and above bias the fit (0.04 on an exact
+#: rank-4 W).
 ALS_RIDGE = 1e-5
 #: Hidden entries whose leverage (:meth:`LowRank.leverage`) is at most this are predicted well
 #: enough by the model to be used as data (:func:`trusted_entries`). Chosen on seeds 0-1 of
