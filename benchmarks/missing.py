@@ -4,6 +4,8 @@ sweeps across the object together with tracks that end (structured) and for rand
     python benchmarks/missing.py                  # seeds 0 and 1, ~25 min on 2 busy cores
     python benchmarks/missing.py --quick          # 300 points, seed 0 -> results/quick/
     python benchmarks/missing.py --points 5000 --closing-points 5000 --seeds 0 1 2 --jobs 1
+    python benchmarks/missing.py --closing-only --dense-repeats 3 --jobs 1 \
+        --output-dir benchmarks/results/missing_closing   # the closing checks, 3 timed runs each
 
 The visibility comes from :func:`moju_core.datasets.occlusion_mask`; the solver gets ``W`` with
 NaN at the hidden entries (known rotations in the sweep). Each row records e3D (per-frame
@@ -180,16 +182,20 @@ def run(
     levels: dict[str, list[dict[str, float]]],
     repeats: int,
     jobs: int,
+    dense_repeats: int = 1,
+    closing_only: bool = False,
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """The sweep rows and the closing checks, in a fixed order whatever ``jobs`` is; the
     closing checks (the longest units) are submitted first."""
     closing = [
         (name, n_frames, closing_points if dense else SPARSE_POINTS, source, seed,
-         1 if dense or seed != seeds[0] else repeats)
+         dense_repeats if dense else repeats if seed == seeds[0] else 1)
         for name, n_frames, dense, source in CLOSING_CASES
         for seed in seeds
     ]  # fmt: skip
     sweeps = [(name, seed, n_points, levels, seed == seeds[0]) for name in names for seed in seeds]
+    if closing_only:
+        sweeps = []
     if jobs == 1:
         checks = [closing_unit(*args) for args in closing]
         results = [sweep_unit(*args) for args in sweeps]
@@ -369,11 +375,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--repeats", type=int, default=None, help="timed runs of the sparse check (default 3)"
     )
+    parser.add_argument(
+        "--dense-repeats", type=int, default=1,
+        help="timed runs of each dense closing check (default 1)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--closing-only", action="store_true",
+        help="only the closing checks (use --output-dir to keep the full report)",
+    )  # fmt: skip
     parser.add_argument("--jobs", type=int, default=2, help="solves in parallel processes")
     parser.add_argument("--output-dir", type=Path, default=None)
     args = parser.parse_args(argv)
-    if args.jobs < 1 or (args.repeats is not None and args.repeats < 1):
-        parser.error("--jobs and --repeats must be at least 1")
+    if args.jobs < 1 or args.dense_repeats < 1 or (args.repeats is not None and args.repeats < 1):
+        parser.error("--jobs, --repeats and --dense-repeats must be at least 1")
     n_points = args.points or (QUICK_POINTS if args.quick else DEFAULT_POINTS)
     closing_points = args.closing_points or (QUICK_POINTS if args.quick else CLOSING_POINTS)
     seeds = args.seeds or ([0] if args.quick else [0, 1])
@@ -382,7 +396,10 @@ def main(argv: list[str] | None = None) -> int:
     meta = provenance(None if argv is None else [__file__, *argv])
     start = time.perf_counter()
     levels = QUICK_LEVELS if args.quick else LEVELS
-    rows, checks = run(args.sequences, seeds, n_points, closing_points, levels, repeats, args.jobs)
+    rows, checks = run(
+        args.sequences, seeds, n_points, closing_points, levels, repeats, args.jobs,
+        dense_repeats=args.dense_repeats, closing_only=args.closing_only,
+    )  # fmt: skip
     meta["seconds"] = time.perf_counter() - start
     for path in write(rows, checks, meta, out):
         print(f"wrote {path}")

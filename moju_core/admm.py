@@ -386,9 +386,12 @@ def reprojection_error(state: LoopState, settings: LoopSettings) -> float:
     if observed is not None:
         reprojection *= observed[:, None, :]
         shift = reprojection.sum(axis=2) / settings.frame_counts  # (F, 2), R S - W on average
-        state.tracks += shift[:, :, None] * observed[:, None, :]
-        reprojection -= shift[:, :, None] * observed[:, None, :]
-        state.back_projected = camera.back_project(state.rotations, state.tracks)
+        moved = shift[:, :, None] * observed[:, None, :]
+        state.tracks += moved
+        reprojection -= moved
+        # back_project is linear in the tracks: update it by the shift's back-projection.
+        moved_back = np.einsum("fji,fj->fi", state.rotations, shift)
+        state.back_projected += moved_back[:, :, None] * observed[:, None, :]
     return float(np.sqrt(np.vdot(reprojection, reprojection) / (2 * settings.n_observed)))
 
 

@@ -153,7 +153,13 @@ def project_groups(
 
 
 def project_observed(
-    trajectories: np.ndarray, bounds: np.ndarray, bases: np.ndarray, observed: np.ndarray
+    trajectories: np.ndarray,
+    bounds: np.ndarray,
+    bases: np.ndarray,
+    observed: np.ndarray,
+    *,
+    source: np.ndarray | None = None,
+    hidden_weight: float = 0.0,
 ) -> np.ndarray:
     """Local reconstruction of points with unobserved frames, fitted on their observed frames.
 
@@ -171,21 +177,34 @@ def project_observed(
     bounds : ndarray of shape (K + 1,)
     bases : ndarray of shape (K, 3F, p)
     observed : ndarray of shape (F, P), bool
+    source : ndarray of shape (3F, m), optional
+        The values to fit, for the m points with hidden frames (``~observed.all(axis=0)``), in
+        their order; default ``trajectories`` at those points. The loop passes the values
+        before the groups' projection: after it, a point's observed frames are in the span
+        already and the fit returns the projection unchanged.
+    hidden_weight : float, default 0.0
+        Weight of the hidden frames in the fit (the observed ones weigh 1): a small weight
+        lets the current values there (held by the data and temporal steps) steer the
+        coefficients a little instead of not at all.
     """
     n_frames = observed.shape[0]
     partial = ~observed.all(axis=0)
+    position = np.cumsum(partial) - 1  # column j's index among the partial points
     for i in range(len(bounds) - 1):
         columns = bounds[i] + np.flatnonzero(partial[bounds[i] : bounds[i + 1]])
         if columns.size == 0:
             continue
         basis = bases[i].reshape(n_frames, 3, -1)  # Phi_f, (F, 3, p)
         weights = observed[:, columns].astype(np.float64)  # (F, n)
+        if hidden_weight:
+            weights += hidden_weight * (1.0 - weights)
         frame_normals = np.einsum("fca,fcb->fab", basis, basis)  # (F, p, p)
         normals = np.einsum("fn,fab->nab", weights, frame_normals)
         normals += (
             1e-10 * np.trace(normals, axis1=1, axis2=2)[:, None, None] * np.eye(basis.shape[2])
         )
-        block = trajectories[:, columns].reshape(n_frames, 3, -1) * weights[:, None, :]
+        values = trajectories[:, columns] if source is None else source[:, position[columns]]
+        block = values.reshape(n_frames, 3, -1) * weights[:, None, :]
         rhs = np.einsum("fca,fcn->na", basis, block)
         coefficients = np.linalg.solve(normals, rhs[:, :, None])[:, :, 0]  # (n, p)
         trajectories[:, columns] = bases[i] @ coefficients.T

@@ -15,6 +15,12 @@ import numpy as np
 from moju_core import clustering, grassmann, jump, lrr
 from moju_core.loop_state import GroupCoefficients, LoopSettings, LoopState
 
+#: With hidden entries, step 9 fits each partly seen point in its group's subspace from its
+#: values before the projection (after it the fit would return the projection unchanged),
+#: with its hidden frames weighted :data:`GROUP_FILL_HIDDEN_WEIGHT` against 1 for the seen ones.
+GROUP_FILL_FROM_UNPROJECTED = True
+GROUP_FILL_HIDDEN_WEIGHT = 0.1
+
 
 def fit_group_subspaces(state: LoopState, p: int) -> None:
     """Step 2: the Grassmann point of every group, ``state.bases`` of shape (K, 3F, p).
@@ -102,9 +108,19 @@ def reconstruct_groups(state: LoopState, regrouped: bool) -> None:
     hidden ones (:func:`moju_core.grassmann.project_observed`). In place on ``state.shapes``.
     """
     trajectories = state.trajectories
+    source = None
+    if state.observed is not None and GROUP_FILL_FROM_UNPROJECTED:
+        source = trajectories[:, ~state.observed.all(axis=0)].copy()
     if regrouped:
         grassmann.project_groups(trajectories, state.bounds, state.bases, out=trajectories)
     else:
         state.bases = grassmann.track_and_project(trajectories, state.bounds, state.bases)
     if state.observed is not None:
-        grassmann.project_observed(trajectories, state.bounds, state.bases, state.observed)
+        grassmann.project_observed(
+            trajectories,
+            state.bounds,
+            state.bases,
+            state.observed,
+            source=source,
+            hidden_weight=GROUP_FILL_HIDDEN_WEIGHT if source is not None else 0.0,
+        )

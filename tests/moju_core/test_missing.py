@@ -27,8 +27,10 @@ def test_completion_ignores_the_hidden_values_and_recovers_a_low_rank_w(face):
     visibility = occlusion_mask(face, lost=0.0, dropout=0.2, seed=3)
     garbage = face.W.copy()
     garbage[np.repeat(~visibility, 2, axis=0)] = 1e3  # any values where hidden
-    completed, translation = missing.complete(garbage, visibility)
-    again, _ = missing.complete(face.W, visibility)
+    model = missing.complete(garbage, visibility)
+    completed = model.fill(garbage, visibility)
+    translation = completed.mean(axis=1)
+    again = missing.complete(face.W, visibility).fill(face.W, visibility)
     assert_allclose(completed, again, atol=1e-9)
     hidden = np.repeat(~visibility, 2, axis=0)
     assert np.array_equal(completed[~hidden], face.W[~hidden])
@@ -128,3 +130,130 @@ def test_the_smoothness_trials_fit_the_observed_entries_only():
     complete = reconstruct(data.W, params, rotations=data.rotations)
     masked = reconstruct(_with_nan(data.W, visibility), params, rotations=data.rotations)
     assert masked.params.smoothness == complete.params.smoothness > 1.0
+
+
+def _low_rank_w(rng, n_rows=60, n_points=300, rank=4):
+    left = rng.standard_normal((n_rows, rank))
+    right = rng.standard_normal((rank, n_points))
+    return left @ right + rng.standard_normal(n_rows)[:, None] * 5.0
+
+
+def test_als_recovers_an_exact_low_rank_w_with_its_translation_from_its_observed_entries():
+    rng = np.random.default_rng(1)
+    W = _low_rank_w(rng)
+    visibility = rng.random((30, 300)) > 0.3
+    garbage = np.where(np.repeat(visibility, 2, axis=0), W, 1e3)
+    model = missing.complete_at_rank(garbage, visibility, 4)
+    assert isinstance(model, missing.LowRank) and model.rank == 4
+    assert_allclose(model.values(), W, atol=1e-3 * np.abs(W).max())
+    assert_allclose(model.values(np.arange(5)), model.values()[:, :5])
+    filled = model.fill(garbage, visibility)
+    seen = np.repeat(visibility, 2, axis=0)
+    assert np.array_equal(filled[seen], W[seen])
+    assert_allclose(model.centroid(), W.mean(axis=1), atol=1e-3 * np.abs(W).max())
+    # The EM warm start alone (no ALS sweep) is further from the truth.
+    sweeps = missing.ALS_SWEEPS
+    try:
+        missing.ALS_SWEEPS = 0
+        em = missing.complete_at_rank(garbage, visibility, 4)
+    finally:
+        missing.ALS_SWEEPS = sweeps
+    hidden = ~seen
+    assert np.abs(model.values() - W)[hidden].max() < np.abs(em.values() - W)[hidden].max()
+
+
+def test_the_rank_is_chosen_on_held_out_entries_and_runs_of_frames():
+    rng = np.random.default_rng(2)
+    visibility = rng.random((30, 300)) > 0.2
+    held = missing.hold_out(visibility, np.random.default_rng(0))
+    assert not (held & ~visibility).any()
+    assert ((visibility & ~held).sum(axis=0) >= 2).all()
+    # Some points lose a run of consecutive frames (a quarter of them).
+    length = round(missing.HOLD_OUT_RUN_LENGTH * 30)
+    runs = [j for j in range(300) if held[:, j].sum() >= 0.6 * length]
+    assert len(runs) >= 0.8 * missing.HOLD_OUT_RUN_POINTS * 300
+    W = _low_rank_w(rng, rank=3) + 1e-3 * rng.standard_normal((60, 300))
+    assert missing.choose_rank(W, visibility) == 3
+
+
+def test_leverage_is_about_one_over_the_observed_fraction_and_large_for_a_point_seen_early_only():
+    rng = np.random.default_rng(3)
+    W = _low_rank_w(rng)
+    visibility = rng.random((30, 300)) > 0.3
+    visibility[:, :2] = False
+    visibility[:2, 0] = True  # point 0: frames 0-1 only, 4 rows for 4 coefficients
+    visibility[:4, 1] = True  # point 1: frames 0-3, enough for the model, extrapolated
+    model = missing.complete_at_rank(W, visibility, 4)
+    leverage = model.leverage(visibility)
+    assert leverage.shape == visibility.shape
+    typical = np.median(leverage[:, 2:])
+    assert 1.0 <= typical < 3.0
+    assert leverage[2:, 0].min() > missing.TRUSTED_LEVERAGE
+    assert 10 * typical < leverage[4:, 1].min() < missing.TRUSTED_LEVERAGE
+    trusted = missing.trusted_entries(model, visibility)
+    assert trusted[visibility].all()
+    assert not trusted[2:, 0].any() and trusted[:, 1].all()
+    assert trusted[:, 2:].mean() > 0.95
+
+
+def test_the_group_fill_fits_the_values_before_the_projection_with_hidden_frames_weighted():
+    from moju_core import grassmann
+
+    rng = np.random.default_rng(4)
+    n_frames, n_points, p = 12, 8, 3
+    basis = np.linalg.qr(rng.standard_normal((3 * n_frames, p)))[0]
+    bounds = np.array([0, n_points])
+    observed = np.ones((n_frames, n_points), bool)
+    observed[6:, :3] = False
+    truth = basis @ rng.standard_normal((p, n_points))
+    source = truth[:, :3] + 0.0
+    source.reshape(n_frames, 3, 3)[6:] += 5.0  # wrong values in the hidden frames
+    # Ignored hidden frames: the observed ones determine the truth exactly.
+    out = grassmann.project_observed(
+        np.zeros_like(truth), bounds, basis[None], observed, source=source
+    )
+    assert_allclose(out[:, :3], truth[:, :3], atol=1e-8)
+    assert np.array_equal(out[:, 3:], np.zeros((3 * n_frames, n_points - 3)))
+    # A small weight on the hidden frames moves the fit towards their values, a little.
+    weighted = grassmann.project_observed(
+        np.zeros_like(truth), bounds, basis[None], observed, source=source, hidden_weight=0.1
+    )
+    moved = np.abs(weighted[:, :3] - truth[:, :3]).max()
+    assert 0 < moved < 5.0
+
+
+def test_the_translation_refit_keeps_the_back_projection_of_the_tracks():
+    from moju_core import admm
+    from moju_core.loop_state import initial_state, loop_settings
+
+    rng = np.random.default_rng(5)
+    rotations = project_to_stiefel(rng.standard_normal((6, 2, 3)))
+    tracks = rng.standard_normal((6, 2, 20))
+    observed = rng.random((6, 20)) > 0.3
+    params = SolverParams(seed=0, rotations="known", smoothness=0.0)
+    from moju_core import defaults
+
+    params = defaults.resolve(params, 6, 20, 1.0, rotations=rotations)
+    state = initial_state(tracks, rotations, 1.0, observed)
+    state.shapes += rng.standard_normal(state.shapes.shape)
+    settings = loop_settings(params, 6, 20, observed, False)
+    admm.reprojection_error(state, settings)
+    assert_allclose(state.back_projected, projection.back_project(rotations, state.tracks))
+
+
+def test_the_cameras_with_missing_data_use_the_well_seen_points_model_values():
+    from moju_core import solver
+
+    rng = np.random.default_rng(6)
+    W = _low_rank_w(rng, n_points=100)
+    visibility = np.ones((30, 100), bool)
+    visibility[5:, :40] = False  # points 0-39 seen in 5 of 30 frames
+    model = missing.complete_at_rank(W, visibility, 4)
+    tracks, decomposition = solver._camera_tracks(model, visibility, 2.0)
+    singular = decomposition.singular
+    assert tracks.shape == (60, 60)
+    expected = model.values(np.arange(40, 100))
+    expected = (expected - expected.mean(axis=1, keepdims=True)) / 2.0
+    assert_allclose(tracks, expected)
+    truth = np.linalg.svd(expected, compute_uv=False)[: singular.size]
+    assert_allclose(singular, truth, atol=1e-6 * truth[0])  # the Gram route resolves ~1e-8
