@@ -35,7 +35,7 @@ import numpy as np
 from moju_core import clustering, grouping_steps, lrr, temporal_prior
 from moju_core.cameras import projection as camera
 from moju_core.cameras.refinement import fit_rotations_to_shapes
-from moju_core.defaults import EXACT_GAP_PRECISION, GAP_PRECISION, ROTATION_REFINE_RHO
+from moju_core.defaults import EXACT_GAP_PRECISION, ROTATION_REFINE_RHO
 from moju_core.loop_state import (
     GroupCoefficients,
     LoopSettings,
@@ -159,8 +159,10 @@ def run(
     if settings.local:
         initial_groups(state, settings, features)
     group_lrr = GroupCoefficients.initial(state.n_groups, n_frames, params.low_dim, params.seed)
-    precision = EXACT_GAP_PRECISION if settings.exact_data else GAP_PRECISION
-    stopping = StoppingTest(params.tol, params.rho_max, precision)
+    tol = params.tol
+    if settings.exact_data and tol > 0:
+        tol = max(tol, EXACT_GAP_PRECISION)  # below it the gap is rounding (defaults)
+    stopping = StoppingTest(tol, params.rho_max)
     history: dict[str, list[float]] = {key: [] for key in HISTORY_KEYS}
     stop_reason, iteration = StopReason.MAX_ITER, 0
     for iteration in range(1, params.max_iter + 1):
@@ -270,8 +272,18 @@ def shape_update(state: LoopState, settings: LoopSettings) -> None:
     np.add(state.sharp, state.scaled, out=state.work)
     target = state.work.reshape(n_frames, 3, n_points)
     if settings.exact_data:
+        if state.depth_pull is None:
+            state.depth_pull = temporal_prior.depth_pull(
+                state.back_projected, state.normals, settings.prior
+            )
         temporal_prior.depth_step(
-            state.back_projected, state.normals, target, state.rho, settings.prior, state.shapes
+            state.back_projected,
+            state.normals,
+            target,
+            state.rho,
+            settings.prior,
+            state.shapes,
+            pull=state.depth_pull,
         )
     elif settings.exact_prior:
         if state.observed is not None:
@@ -307,6 +319,7 @@ def refit_rotations(state: LoopState) -> None:
     )
     state.rotations = fit_rotations_to_shapes(state.rotations, seen, low_rank)
     state.back_projected = camera.back_project(state.rotations, state.tracks)
+    state.depth_pull = None
     state.normals = camera.viewing_directions(state.rotations)
 
 

@@ -59,10 +59,12 @@ SETTLED_MOVE_FRACTION = 1e-2
 #: tol at iteration 145. Without this rule such runs went on to rho_max (243 iterations) with
 #: no change in e3D.
 GAP_PRECISION = 1e-8
-#: The same for a loop that fits the tracks exactly (:func:`moju_core.temporal_prior.depth_step`):
-#: nothing is shrunk away from S# once rho is large, and its Gram-matrix SVD then resolves the
-#: small singular values only to about 1e-7 (face3, 800 points: the gap stalls at 1-2e-7 from
-#: iteration 140 on, while e3D has not changed in 5 digits since iteration 100).
+#: Smallest shape gap a loop that fits the tracks exactly can resolve
+#: (:func:`moju_core.temporal_prior.depth_step`); it stops once the gap is below it, whatever
+#: smaller ``tol`` was asked. Nothing is shrunk away from S# once rho is large, and its
+#: Gram-matrix SVD then gives the small singular values only to about 1e-7 (face3, 800
+#: points: the gap stalls at 1-2e-7 from iteration 140 on, while e3D has not changed in five
+#: digits since iteration 100, at a gap of 1e-5).
 EXACT_GAP_PRECISION = 1e-6
 #: Iterations without a new smallest shape gap after which a gap below ``GAP_PRECISION`` counts
 #: as converged.

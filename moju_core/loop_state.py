@@ -102,6 +102,9 @@ class LoopState:
         Trajectories moved between groups so far (summed over the regroupings).
     svt_warm : WarmStart
         The S#-update's vectors from one iteration to the next (:class:`moju_core.lrr.WarmStart`).
+    depth_pull : ndarray of shape (F, P) or None
+        The exact fit's constant term (:func:`moju_core.temporal_prior.depth_pull`), kept once
+        computed.
     """
 
     rotations: np.ndarray
@@ -124,6 +127,7 @@ class LoopState:
     grouping_settled: bool = True
     label_changes: int = 0
     svt_warm: lrr.WarmStart = field(default_factory=lrr.WarmStart)
+    depth_pull: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -166,6 +170,8 @@ class LoopState:
         if self.features is not None:
             self.features = self.features[perm]
         self.shapes = permute_points(self.shapes, perm)
+        if self.depth_pull is not None:
+            self.depth_pull = permute_points(self.depth_pull, perm)
         self.sharp = permute_points(self.sharp.reshape(n_frames, 3, n_points), perm).reshape(
             n_frames, -1
         )

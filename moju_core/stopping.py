@@ -27,9 +27,6 @@ class StoppingTest:
         Tolerance on the shape gap ``max|S# - f(S)|``; 0: never converged.
     rho_max : float
         Largest penalty: the loop stops once rho has reached it.
-    precision : float, default GAP_PRECISION
-        A stalled gap below this counts as converged (``EXACT_GAP_PRECISION`` when the loop
-        fits the tracks exactly).
 
     Attributes
     ----------
@@ -39,18 +36,17 @@ class StoppingTest:
         Iterations since it was seen.
     """
 
-    def __init__(self, tol: float, rho_max: float, precision: float = GAP_PRECISION) -> None:
+    def __init__(self, tol: float, rho_max: float) -> None:
         self.tol = tol
         self.rho_max = rho_max
-        self.precision = precision
         self.smallest_gap = np.inf
         self.since_smallest = 0
 
     def at_precision(self) -> bool:
-        """The gap is below ``precision`` and has not fallen for ``STALL_ITERATIONS``."""
+        """The gap is below ``GAP_PRECISION`` and has not fallen for ``STALL_ITERATIONS``."""
         return (
             self.tol > 0  # tol = 0: no convergence test at all
-            and self.smallest_gap < self.precision
+            and self.smallest_gap < GAP_PRECISION
             and self.since_smallest >= STALL_ITERATIONS
         )
 

@@ -240,6 +240,14 @@ def penalty_times(shapes: np.ndarray) -> np.ndarray:
     return out
 
 
+def depth_pull(back_projected: np.ndarray, normals: np.ndarray, prior: TemporalPrior) -> np.ndarray:
+    """``gamma N^T (D^T D kron I_3) S0``, the depth step's constant part, (F, P).
+
+    It depends on the tracks and the cameras only, so the loop computes it once per solve.
+    """
+    return prior.weight * np.einsum("fc,fcp->fp", normals, penalty_times(back_projected))
+
+
 def depth_step(
     back_projected: np.ndarray,
     normals: np.ndarray,
@@ -247,6 +255,7 @@ def depth_step(
     rho: float,
     prior: TemporalPrior,
     out: np.ndarray,
+    pull: np.ndarray | None = None,
 ) -> np.ndarray:
     """S-update with the temporal prior and the tracks fitted exactly (near noise-free tracks).
 
@@ -273,15 +282,20 @@ def depth_step(
     prior : TemporalPrior
     out : ndarray of shape (F, 3, P), C-contiguous
         Where the solution is written (must not share memory with the inputs).
+    pull : ndarray of shape (F, P), optional
+        :func:`depth_pull` of ``back_projected``, if the caller keeps it.
 
     Returns
     -------
     ndarray of shape (F, 3, P)
         ``out``.
     """
+    if pull is None:
+        pull = depth_pull(back_projected, normals, prior)
     factor = cholesky_banded(depth_bands(normals, rho, prior), check_finite=False)
-    pulled = penalty_times(back_projected)
-    rhs = np.einsum("fc,fcp->fp", normals, rho * target - prior.weight * pulled)
+    rhs = np.einsum("fc,fcp->fp", normals, target)
+    rhs *= rho
+    rhs -= pull
     depths = cho_solve_banded((factor, False), rhs, overwrite_b=True, check_finite=False)
     np.multiply(normals[:, :, None], depths[:, None, :], out=out)
     out += back_projected

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from moju_core import SolverParams, reconstruct, temporal_prior
+from moju_core import SolverParams, defaults, reconstruct, temporal_prior
 from moju_core.cameras import projection
 from moju_core.cameras.refinement import project_to_stiefel
 from moju_core.datasets import make_sequence
@@ -188,3 +188,25 @@ def test_the_loop_fits_exactly_only_complete_tracks_without_noise(
         W[4:, :5] = np.nan  # five points seen in 2 frames: their completions are not trusted
     reconstruct(W, SolverParams(smoothness=10.0, max_iter=5), rotations=data.rotations)
     assert (calls["depth"] > 0) is exact
+
+
+def test_the_depth_step_with_its_kept_pull_is_the_same_step():
+    rng = np.random.default_rng(5)
+    rotations = project_to_stiefel(rng.standard_normal((9, 2, 3)))
+    back_projected = projection.back_project(rotations, rng.standard_normal((9, 2, 7)))
+    normals = projection.viewing_directions(rotations)
+    target = rng.standard_normal((9, 3, 7))
+    prior = temporal_prior.temporal_prior(9, 30.0)
+    computed, kept = np.empty_like(target), np.empty_like(target)
+    temporal_prior.depth_step(back_projected, normals, target, 0.5, prior, computed)
+    pull = temporal_prior.depth_pull(back_projected, normals, prior)
+    temporal_prior.depth_step(back_projected, normals, target, 0.5, prior, kept, pull=pull)
+    assert_allclose(kept, computed, rtol=1e-12, atol=1e-12)
+
+
+def test_an_exact_fit_stops_at_the_gap_it_can_resolve():
+    data = make_sequence("paper", n_points=300)
+    result = reconstruct(data.W, SolverParams(smoothness=100.0), rotations=data.rotations)
+    assert result.stop_reason == "converged"
+    assert result.history["gap_shape"][-1] < defaults.EXACT_GAP_PRECISION
+    assert result.n_iter < defaults.expected_iterations(result.params)  # before rho_max
