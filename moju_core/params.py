@@ -118,7 +118,8 @@ class SolverParams(BaseModel):
             "its first 20 iterations (before then: 1 with free_mean_shape, else 0). Values "
             "left out are not shrunk, so the deformations they carry keep their depth. Unset: "
             "'moju' and 'sdg' leave out min(k, 4) when the cameras determine a trajectory "
-            "basis of k >= 3 cosines (PTA's well-conditioned size), otherwise only the mean "
+            "basis of k >= 3 cosines (PTA's well-conditioned size), the smoothness is at "
+            "least 10 and the tracks are free of measurable noise, otherwise only the mean "
             "shape; 'bmm' follows free_mean_shape. Ignored by 'pta'."
         ),
     )

@@ -240,7 +240,7 @@ def _reconstruct(
         )
         params = params.model_copy(update={"smoothness": weight})
     if derive_unshrunk:
-        unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness)
+        unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness, noise)
         params = params.model_copy(update={"unshrunk_values": unshrunk})
     features = None
     if params.method not in ("bmm", "pta") and params.n_groups > 1:

@@ -43,11 +43,19 @@ def test_the_limited_basis_size_is_the_full_one_capped(limit: int) -> None:
     assert defaults.trajectory_basis_size(rotations, limit=limit) == min(full, limit)
 
 
-def test_a_weak_prior_leaves_only_the_mean_shape_unshrunk() -> None:
-    strong = defaults.MIN_DEPTH_PRIOR
-    assert defaults.unshrunk_with_prior(4, strong) == 4
-    assert defaults.unshrunk_with_prior(4, strong / 10) == 1
-    assert defaults.unshrunk_with_prior(0, 0.0) == 0  # the penalised mean shape stays so
+def test_a_weak_prior_or_noisy_tracks_leave_only_the_mean_shape_unshrunk() -> None:
+    strong, quiet = defaults.MIN_DEPTH_PRIOR, defaults.EXACT_DATA_NOISE
+    assert defaults.unshrunk_with_prior(4, strong, quiet) == 4
+    assert defaults.unshrunk_with_prior(4, strong / 10, quiet) == 1
+    assert defaults.unshrunk_with_prior(4, strong, 10 * quiet) == 1
+    assert defaults.unshrunk_with_prior(0, 0.0, 0.0) == 0  # the penalised mean shape stays so
+
+
+def test_noisy_tracks_solve_with_only_the_mean_shape_unshrunk() -> None:
+    data = make_sequence("paper", n_points=200, n_frames=30, noise=0.02)
+    result = reconstruct(data.W, SolverParams(smoothness=100.0), rotations=data.rotations)
+    assert defaults.unshrunk_values(data.rotations) > 1  # the cameras alone would allow more
+    assert result.params.unshrunk_values == 1
 
 
 def test_the_loop_keeps_the_mean_shape_only_for_the_first_iterations() -> None:
