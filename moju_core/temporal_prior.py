@@ -240,6 +240,46 @@ def penalty_times(shapes: np.ndarray) -> np.ndarray:
     return out
 
 
+#: Right-hand sides per frame from which :func:`solve_factored_bands` substitutes row by row
+#: across all points instead of calling LAPACK, which solves one right-hand side at a time: at
+#: F = 99 and P = 2,000 the row sweep took 1.7 ms against LAPACK's 4.6 ms; with few points per
+#: frame (long sequences of sparse markers) LAPACK is the faster.
+ROW_SWEEP_MIN_COLUMNS_PER_ROW = 4
+
+
+def solve_factored_bands(factor: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve ``U^T U x = rhs`` for the upper banded Cholesky factor of a pentadiagonal matrix.
+
+    Parameters
+    ----------
+    factor : ndarray of shape (3, F)
+        :func:`scipy.linalg.cholesky_banded` of the matrix (upper form, 2 off-diagonals).
+    rhs : ndarray of shape (F, P)
+        Right-hand sides (overwritten).
+
+    Returns
+    -------
+    ndarray of shape (F, P)
+    """
+    n_rows, n_columns = rhs.shape
+    if n_columns < ROW_SWEEP_MIN_COLUMNS_PER_ROW * n_rows:
+        return cho_solve_banded((factor, False), rhs, overwrite_b=True, check_finite=False)
+    diagonal, first, second = factor[2], factor[1], factor[0]
+    for row in range(n_rows):  # U^T y = rhs, in place
+        if row >= 1:
+            rhs[row] -= first[row] * rhs[row - 1]
+        if row >= 2:
+            rhs[row] -= second[row] * rhs[row - 2]
+        rhs[row] /= diagonal[row]
+    for row in range(n_rows - 1, -1, -1):  # U x = y, in place
+        if row + 1 < n_rows:
+            rhs[row] -= first[row + 1] * rhs[row + 1]
+        if row + 2 < n_rows:
+            rhs[row] -= second[row + 2] * rhs[row + 2]
+        rhs[row] /= diagonal[row]
+    return rhs
+
+
 def depth_pull(back_projected: np.ndarray, normals: np.ndarray, prior: TemporalPrior) -> np.ndarray:
     """``gamma N^T (D^T D kron I_3) S0``, the depth step's constant part, (F, P).
 
@@ -296,7 +336,7 @@ def depth_step(
     rhs = np.einsum("fc,fcp->fp", normals, target)
     rhs *= rho
     rhs -= pull
-    depths = cho_solve_banded((factor, False), rhs, overwrite_b=True, check_finite=False)
+    depths = solve_factored_bands(factor, rhs)
     np.multiply(normals[:, :, None], depths[:, None, :], out=out)
     out += back_projected
     return out
