@@ -174,17 +174,10 @@ def unshrunk_values(rotations: np.ndarray) -> int:
     return k if k >= MIN_DEPTH_BASIS else 1
 
 
-def unshrunk_with_prior(unshrunk: int, smoothness: float, noise: float) -> int:
-    """The default ``unshrunk_values`` once the smoothness and the noise are known: only the
-    mean shape (at most 1) unless the prior's weight is at least :data:`MIN_DEPTH_PRIOR` and
-    the tracks' estimated noise variance at most :data:`EXACT_DATA_NOISE`.
-
-    Unshrunk values keep everything in their subspace, the noise included: with the paper's
-    noise (lambda_g 0.01-0.055, face3, 2,000 points, seeds 0-1, known rotations) leaving 4
-    values unshrunk cost 1-6 % of e3D.
-    """
-    strong_prior = smoothness >= MIN_DEPTH_PRIOR and noise <= EXACT_DATA_NOISE
-    return unshrunk if strong_prior else min(unshrunk, 1)
+def unshrunk_with_prior(unshrunk: int, smoothness: float) -> int:
+    """The default ``unshrunk_values`` once the smoothness is known: only the mean shape (at
+    most 1) unless the prior's weight is at least :data:`MIN_DEPTH_PRIOR`."""
+    return unshrunk if smoothness >= MIN_DEPTH_PRIOR else min(unshrunk, 1)
 
 
 def resolve(
@@ -194,6 +187,7 @@ def resolve(
     top_singular_value: float,
     *,
     rotations: np.ndarray | None = None,
+    noise: float = 0.0,
 ) -> SolverParams:
     """Fill in every data-derived default of ``params``.
 
@@ -209,6 +203,11 @@ def resolve(
     rotations : ndarray of shape (F, 2, 3), optional
         Camera rotations; needed to derive ``trajectory_bases`` (method ``pta``) and
         ``unshrunk_values`` (methods ``moju`` and ``sdg``).
+    noise : float, default 0.0
+        Estimated noise variance of the scale-normalised tracks
+        (:func:`moju_core.spectrum.noise_variance`). Above :data:`EXACT_DATA_NOISE` only the
+        mean shape is left unshrunk: unshrunk values keep the noise in their subspace (with
+        the paper's noise, lambda_g 0.01-0.055, face3 at 2,000 points lost 1-6 % of e3D).
 
     Returns
     -------
@@ -256,7 +255,10 @@ def resolve(
         local_model = params.method in ("moju", "sdg") and free_mean_shape
         if local_model and rotations is None:
             raise ValueError("'moju' and 'sdg' need the rotations to derive unshrunk_values")
-        unshrunk = unshrunk_values(rotations) if local_model else int(bool(free_mean_shape))
+        quiet = noise <= EXACT_DATA_NOISE
+        unshrunk = (
+            unshrunk_values(rotations) if local_model and quiet else int(bool(free_mean_shape))
+        )
     smoothness = params.smoothness
     if smoothness is None and baseline:
         smoothness = 0.0

@@ -218,7 +218,7 @@ def _reconstruct(
     top = lrr.top_singular_value(initial)
     del initial  # (F, 3P): do not hold it through the loop
     derive_unshrunk = params.unshrunk_values is None
-    params = defaults.resolve(params, n_frames, n_points, top, rotations=rotations)
+    params = defaults.resolve(params, n_frames, n_points, top, rotations=rotations, noise=noise)
     params = params.model_copy(update={"n_bases": n_bases})
     # Again with the values derived from the data.
     feasibility.check_fit(params, n_frames, n_points, has_rotations=True)
@@ -240,7 +240,7 @@ def _reconstruct(
         )
         params = params.model_copy(update={"smoothness": weight})
     if derive_unshrunk:
-        unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness, noise)
+        unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness)
         params = params.model_copy(update={"unshrunk_values": unshrunk})
     features = None
     if params.method not in ("bmm", "pta") and params.n_groups > 1:

@@ -43,12 +43,21 @@ def test_the_limited_basis_size_is_the_full_one_capped(limit: int) -> None:
     assert defaults.trajectory_basis_size(rotations, limit=limit) == min(full, limit)
 
 
-def test_a_weak_prior_or_noisy_tracks_leave_only_the_mean_shape_unshrunk() -> None:
-    strong, quiet = defaults.MIN_DEPTH_PRIOR, defaults.EXACT_DATA_NOISE
-    assert defaults.unshrunk_with_prior(4, strong, quiet) == 4
-    assert defaults.unshrunk_with_prior(4, strong / 10, quiet) == 1
-    assert defaults.unshrunk_with_prior(4, strong, 10 * quiet) == 1
-    assert defaults.unshrunk_with_prior(0, 0.0, 0.0) == 0  # the penalised mean shape stays so
+def test_a_weak_prior_leaves_only_the_mean_shape_unshrunk() -> None:
+    strong = defaults.MIN_DEPTH_PRIOR
+    assert defaults.unshrunk_with_prior(4, strong) == 4
+    assert defaults.unshrunk_with_prior(4, strong / 10) == 1
+    assert defaults.unshrunk_with_prior(0, 0.0) == 0  # the penalised mean shape stays so
+
+
+def test_noisy_tracks_resolve_to_the_mean_shape_only_before_the_smoothness_trials() -> None:
+    rotations = make_sequence("face3", n_points=20).rotations
+    assert defaults.unshrunk_values(rotations) > 1
+    quiet, noisy = (
+        defaults.resolve(SolverParams(), 99, 2000, 1.0, rotations=rotations, noise=noise)
+        for noise in (0.0, 10 * defaults.EXACT_DATA_NOISE)
+    )
+    assert quiet.unshrunk_values > 1 and noisy.unshrunk_values == 1
 
 
 def test_noisy_tracks_solve_with_only_the_mean_shape_unshrunk() -> None:
