@@ -179,7 +179,7 @@ def _reconstruct(
     # and the model's errors at trusted entries (rolling sheet, 10 % dropout: 0.004 of the RMS)
     # would count as misfit (it chose 0.1 instead of 100 there).
     fitted = observed
-    if model is not None and TRUST_COMPLETION:
+    if model is not None:
         fitted = missing.trusted_entries(model, observed)
         fitted = None if fitted.all() else fitted
     centred, scale = normalise(W)
@@ -304,8 +304,6 @@ def _reconstruct(
     )
 
 
-#: Whether the loop fits the trusted hidden entries as data (see :func:`_reconstruct`).
-TRUST_COMPLETION = True
 #: With missing data the cameras are estimated from the points seen in at least this fraction
 #: of the frames (all points when fewer than :data:`CAMERA_MIN_POINTS` are).
 CAMERA_MIN_SEEN = 0.5

@@ -10,6 +10,15 @@ from moju_core.cameras.refinement import project_to_stiefel
 from moju_core.datasets import make_sequence
 
 
+def _step_inputs(n_frames: int, n_points: int, seed: int):
+    """Random cameras (F, 2, 3), tracks (F, 2, P) and S-update target (F, 3, P)."""
+    rng = np.random.default_rng(seed)
+    rotations = project_to_stiefel(rng.standard_normal((n_frames, 2, 3)))
+    tracks = rng.standard_normal((n_frames, 2, n_points))
+    target = rng.standard_normal((n_frames, 3, n_points))
+    return rotations, tracks, target
+
+
 def test_second_differences_vanish_on_constant_velocity_only():
     difference = temporal_prior.second_differences(7)
     assert difference.shape == (5, 7)
@@ -23,11 +32,8 @@ def test_second_differences_vanish_on_constant_velocity_only():
     ("n_frames", "weight", "rho"), [(7, 2.5, 0.3), (12, 100.0, 1e-2), (4, 0.1, 50.0)]
 )
 def test_smooth_data_step_solves_the_coupled_system(n_frames, weight, rho):
-    rng = np.random.default_rng(n_frames)
     n_points = 9
-    rotations = project_to_stiefel(rng.standard_normal((n_frames, 2, 3)))
-    tracks = rng.standard_normal((n_frames, 2, n_points))
-    target = rng.standard_normal((n_frames, 3, n_points))
+    rotations, tracks, target = _step_inputs(n_frames, n_points, seed=n_frames)
     back_projected = projection.back_project(rotations, tracks)
     out = np.empty_like(target)
     temporal_prior.smooth_data_step(
@@ -148,11 +154,7 @@ def test_the_loop_solves_the_prior_exactly_only_when_it_refits_the_cameras(
 
 @pytest.mark.parametrize(("n_frames", "weight", "rho"), [(7, 2.5, 0.3), (12, 100.0, 1e-2)])
 def test_depth_step_fits_the_tracks_and_is_optimal_over_the_depths(n_frames, weight, rho):
-    rng = np.random.default_rng(n_frames)
-    n_points = 6
-    rotations = project_to_stiefel(rng.standard_normal((n_frames, 2, 3)))
-    tracks = rng.standard_normal((n_frames, 2, n_points))
-    target = rng.standard_normal((n_frames, 3, n_points))
+    rotations, tracks, target = _step_inputs(n_frames, 6, seed=n_frames)
     normals = projection.viewing_directions(rotations)
     prior = temporal_prior.temporal_prior(n_frames, weight)
     out = np.empty_like(target)
@@ -191,11 +193,9 @@ def test_the_loop_fits_exactly_only_complete_tracks_without_noise(
 
 
 def test_the_depth_step_with_its_kept_pull_is_the_same_step():
-    rng = np.random.default_rng(5)
-    rotations = project_to_stiefel(rng.standard_normal((9, 2, 3)))
-    back_projected = projection.back_project(rotations, rng.standard_normal((9, 2, 7)))
+    rotations, tracks, target = _step_inputs(9, 7, seed=5)
+    back_projected = projection.back_project(rotations, tracks)
     normals = projection.viewing_directions(rotations)
-    target = rng.standard_normal((9, 3, 7))
     prior = temporal_prior.temporal_prior(9, 30.0)
     computed, kept = np.empty_like(target), np.empty_like(target)
     temporal_prior.depth_step(back_projected, normals, target, 0.5, prior, computed)
