@@ -339,6 +339,22 @@ class LoopSettings:
         return self.kept_values if iteration <= UNSHRINK_AFTER else self.unshrunk_values
 
 
+def fits_exactly(
+    exact_data: bool, observed: np.ndarray | None, refine_rotations: bool, smoothness: float
+) -> bool:
+    """Whether a loop fits the tracks exactly (:func:`moju_core.temporal_prior.depth_step`).
+
+    Only noise-free tracks (``exact_data``), complete (``observed`` None) and seen by fixed
+    cameras, with a prior strong enough to set the depths (``smoothness >=``
+    :data:`~moju_core.defaults.MIN_DEPTH_PRIOR`). Refined cameras are corrected through the data
+    term's misfit, which an exact fit removes (paper, windowed cameras 20 degrees off: e3D
+    0.009 soft, 0.103 exact).
+    """
+    return (
+        exact_data and observed is None and not refine_rotations and smoothness >= MIN_DEPTH_PRIOR
+    )
+
+
 def loop_settings(
     params: SolverParams,
     n_frames: int,
@@ -365,14 +381,7 @@ def loop_settings(
         cameras only).
     """
     local = params.method != "bmm" and params.n_groups > 1
-    # Exact fits need cameras the loop trusts: refined cameras are corrected through the data
-    # term's misfit (paper, windowed cameras 20 degrees off: e3D 0.009 soft, 0.103 exact).
-    exact = (
-        exact_data
-        and observed is None
-        and not refine_rotations
-        and params.smoothness >= MIN_DEPTH_PRIOR
-    )
+    exact = fits_exactly(exact_data, observed, refine_rotations, params.smoothness)
     adaptive = local and params.grouping == "adaptive"
     prior = (
         temporal_prior.temporal_prior(n_frames, params.smoothness) if params.smoothness else None

@@ -20,6 +20,7 @@ from moju_core import (
 )
 from moju_core.cameras import projection
 from moju_core.errors import Cancelled, MeasurementError
+from moju_core.loop_state import fits_exactly
 from moju_core.params import SolverParams, rotation_method
 from moju_core.preprocessing import normalise
 from moju_core.result import (
@@ -192,6 +193,7 @@ def _reconstruct(
     signal_basis = decomposition.left[:, : significant_rank(singular, centred.shape)]
     # Relative to the mean square of the normalised tracks, which is 1.
     noise = noise_variance(singular, centred.shape)
+    exact_data = noise <= defaults.EXACT_DATA_NOISE
     if params.rotations == "known":
         estimate = cameras.CameraEstimate(rotations, "known")
     else:
@@ -237,6 +239,7 @@ def _reconstruct(
             refine_rotations=estimate.refine,
             hook=trial_hook,
             observed=observed,
+            exact_fit=fits_exactly(exact_data, fitted, estimate.refine, defaults.MIN_DEPTH_PRIOR),
         )
         params = params.model_copy(update={"smoothness": weight})
     if derive_unshrunk:
@@ -265,7 +268,7 @@ def _reconstruct(
             hook=hook,
             refine_rotations=estimate.refine,
             observed=fitted,
-            exact_data=noise <= defaults.EXACT_DATA_NOISE,
+            exact_data=exact_data,
         )
     timings["iterate"] = time.perf_counter() - tic
 
