@@ -141,8 +141,8 @@ def choose_smoothness(
             observed = observed[first : first + SELECTION_FRAMES]
         n_frames = SELECTION_FRAMES
     energy = float(np.mean(signal**2))
-    singular = np.linalg.svd(signal, compute_uv=False)
-    allowed_excess = DEFORMATION_ALLOWANCE * non_rigid_energy(singular)
+    deformation = non_rigid_energy(np.linalg.svd(signal, compute_uv=False))
+    allowed_excess = DEFORMATION_ALLOWANCE * deformation
     signal_tracks = np.ascontiguousarray(signal.reshape(n_frames, 2, -1))
     trials: list[tuple[float, float]] = []
 
@@ -174,10 +174,12 @@ def choose_smoothness(
             high = middle
     chosen = SMOOTHNESS_GRID[low]
     if chosen < MIN_DEPTH_PRIOR and exact_fit:
-        # The bisection's first trial is MIN_DEPTH_PRIOR (the grid's middle): no new solve.
+        # The bisection's first trial is the grid's middle, MIN_DEPTH_PRIOR: usually no new solve.
         tried = dict(trials)
-        excess = tried[MIN_DEPTH_PRIOR] - unsmoothed
-        if excess <= EXACT_FIT_ALLOWANCE * non_rigid_energy(singular):
+        depth_misfit = (
+            tried[MIN_DEPTH_PRIOR] if MIN_DEPTH_PRIOR in tried else misfit(MIN_DEPTH_PRIOR)
+        )
+        if depth_misfit - unsmoothed <= EXACT_FIT_ALLOWANCE * deformation:
             chosen = MIN_DEPTH_PRIOR
     return chosen, sorted(trials)
 

@@ -9,11 +9,7 @@ from moju_core.preprocessing import normalise
 from moju_core.spectrum import significant_rank
 
 
-def _choose(name: str, n_points: int = 800, noise: float = 0.0, **overrides):
-    return _choose_seeded(name, n_points=n_points, noise=noise, **overrides)
-
-
-def _choose_seeded(
+def _choose(
     name: str,
     n_points: int = 800,
     noise: float = 0.0,
@@ -36,9 +32,7 @@ def _choose_seeded(
     )
     left, singular, _ = np.linalg.svd(centred, full_matrices=False)
     basis = left[:, : significant_rank(singular, centred.shape)]
-    return smoothness.choose_smoothness(
-        tracks, data.rotations, params, basis, exact_fit=exact_fit
-    )
+    return smoothness.choose_smoothness(tracks, data.rotations, params, basis, exact_fit=exact_fit)
 
 
 def test_ten_frames_of_changing_expressions_get_no_prior():
@@ -97,8 +91,8 @@ def test_an_exact_fit_allows_the_depth_setting_weight_where_the_trials_fit_softl
     exact fit keeps the observed motion (measured e3D, 10,000 points: 0.19-0.21 at weight 1,
     0.04 at 10)."""
     data = dict(n_points=10_000, seed=seed)
-    soft, trials = _choose_seeded("bumps-osc", **data)
-    exact, exact_trials = _choose_seeded("bumps-osc", exact_fit=True, **data)
+    soft, trials = _choose("bumps-osc", **data)
+    exact, exact_trials = _choose("bumps-osc", exact_fit=True, **data)
     assert soft < defaults.MIN_DEPTH_PRIOR
     assert exact == defaults.MIN_DEPTH_PRIOR
     assert exact_trials == trials  # the same trial solves: the weight 10 was among them
