@@ -124,6 +124,7 @@ def solve(
         "subspace_dim": result.params.subspace_dim,
         "trajectory_bases": result.params.trajectory_bases,
         "smoothness": result.params.smoothness,
+        "smoothness_trials": [list(trial) for trial in result.diagnostics.smoothness_trials],
         "rotation_estimate": result.diagnostics.rotation_source,
         "rotation_window": result.diagnostics.rotation_window,
         "rotations_refined": result.diagnostics.rotations_refined,

@@ -19,16 +19,14 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from harness import RESULTS, mean, provenance, table, write_json, write_markdown
+from hard import FACE_NAMES as FACES
+from harness import RESULTS, mean, provenance, solve, table, write_json, write_markdown
 from threadpoolctl import threadpool_limits
 
-from moju_core import SolverParams, reconstruct
 from moju_core.datasets import HARD_SEQUENCE_NAMES, make_sequence
-from moju_core.metrics import evaluate
 from moju_core.smoothness import SMOOTHNESS_GRID
 
-FACES = ("face1", "face2", "face3", "face4")
-WEIGHTS = tuple(w for w in SMOOTHNESS_GRID if w > 0)
+WEIGHTS = SMOOTHNESS_GRID
 
 
 def run_unit(
@@ -36,23 +34,17 @@ def run_unit(
 ) -> dict[str, Any]:
     """The auto solve and one solve per fixed weight of one sequence, seed and camera source."""
     data = make_sequence(name, n_points=n_points, seed=seed)
-    known = source == "known"
     row: dict[str, Any] = {"sequence": name, "seed": seed, "rotations": source}
     row["n_points"] = data.n_points
     for weight in (None, *weights):
-        params = SolverParams(
-            seed=seed, smoothness=weight, **({"rotations": "known"} if known else {})
-        )
         with threadpool_limits(limits=1):
-            result = reconstruct(data.W, params, rotations=data.rotations if known else None)
-        shapes = result.shapes
-        score = evaluate(shapes, data.shapes, result.rotations, data.rotations)["e3d_procrustes"]
+            solved = solve(data, "moju", rotation_source=source, seed=seed, smoothness=weight)
         if weight is None:
-            row["chosen"] = result.params.smoothness
-            row["auto"] = score
-            row["trials"] = [list(t) for t in result.diagnostics.smoothness_trials]
+            row["chosen"] = solved["smoothness"]
+            row["auto"] = solved["e3d"]
+            row["trials"] = solved["smoothness_trials"]
         else:
-            row[f"w{weight:g}"] = score
+            row[f"w{weight:g}"] = solved["e3d"]
     grid = {w: row[f"w{w:g}"] for w in weights}
     row["best_weight"] = min(grid, key=grid.get) if grid else None
     row["regret"] = row["auto"] / grid[row["best_weight"]] if grid else None
