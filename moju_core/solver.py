@@ -16,6 +16,7 @@ from moju_core import (
     feasibility,
     lrr,
     missing,
+    neighbours,
     pta,
 )
 from moju_core.cameras import projection
@@ -168,20 +169,22 @@ def _reconstruct(
         rotations = check_rotations(rotations, n_frames)
     # Sizes first, with the messages the service gives at submission (moju_core.feasibility).
     feasibility.check_fit(params, n_frames, n_points, has_rotations=rotations is not None)
-    model = None
+    model, fitted, borrowed = None, observed, False
     if observed is not None:
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
-        # completion of W (moju_core.missing); the loop's data term sees the observed entries.
+        # completion of W (moju_core.missing), with the points it does not determine filled
+        # from their neighbours (moju_core.neighbours).
         model = missing.complete(W, observed)
+        reliable = missing.trusted_entries(model, observed)
+        model, borrowed_points = neighbours.borrow_columns(model, W, observed, reliable)
+        borrowed = bool(borrowed_points.any())
         W = model.fill(W, observed)
-    # The entries the loop fits: the observed ones, and the hidden ones the low-rank model
-    # predicts well (missing.trusted_entries), at their model values. The smoothness trials
-    # fit the observed ones only: their rule compares misfits of ~1e-4 of the tracks' energy,
-    # and the model's errors at trusted entries (rolling sheet, 10 % dropout: 0.004 of the RMS)
-    # would count as misfit (it chose 0.1 instead of 100 there).
-    fitted = observed
-    if model is not None:
-        fitted = missing.trusted_entries(model, observed)
+        # The entries the loop fits: the observed ones, the hidden ones the low-rank model
+        # predicts well and those of the borrowed points, at their model values. The
+        # smoothness trials fit the observed ones only: their rule compares misfits of ~1e-4
+        # of the tracks' energy, and the model's errors at trusted entries (rolling sheet,
+        # 10 % dropout: 0.004 of the RMS) would count as misfit (it chose 0.1 instead of 100).
+        fitted = reliable | borrowed_points[None, :]
         fitted = None if fitted.all() else fitted
     centred, scale = normalise(W)
 
@@ -193,7 +196,9 @@ def _reconstruct(
     signal_basis = decomposition.left[:, : significant_rank(singular, centred.shape)]
     # Relative to the mean square of the normalised tracks, which is 1.
     noise = noise_variance(singular, centred.shape)
-    exact_data = noise <= defaults.EXACT_DATA_NOISE
+    # Borrowed tracks are interpolations, not measurements: fitting them exactly pinned the
+    # completion's errors (docs/solver.md, "Missing data").
+    exact_data = noise <= defaults.EXACT_DATA_NOISE and not borrowed
     if params.rotations == "known":
         estimate = cameras.CameraEstimate(rotations, "known")
     else:

@@ -1,0 +1,160 @@
+"""Hidden tracks filled from their neighbours, where a point's own observations do not fix them.
+
+The low-rank model of W (:class:`moju_core.missing.LowRank`) predicts a point's hidden entries
+from its column, which is fitted on the point's observed frames. A track that ends early (a
+point lost at frame 5 of 99) does not determine that column: on a face with 10 % of the tracks
+lost from a random frame on, the model's error at those tracks' hidden entries was 0.33 of the
+tracks' RMS, against 0.012 at the other hidden entries.
+
+Its neighbours on the surface do move like it. So the column of every point with an
+unreliable entry (:func:`moju_core.missing.trusted_entries` false) is replaced by an affine
+combination of the columns of nearby points whose every entry is reliable, with the weights
+that best reproduce the point's observed image positions from those neighbours' (the local
+reconstruction weights of locally linear embedding, Roweis and Saul 2000). The weights sum to
+one, so the combination is a point of the neighbours' local affine hull and the model's
+translation carries over; a surface that is locally close to affine in its deformation keeps
+the same weights in every frame.
+
+Neighbours are chosen by their image trajectories, not by one frame: candidates are the
+nearest reliable points in the image at the point's first, middle and last observed frames (a
+k-d tree per frame), and of those the :data:`NEIGHBOURS` with the closest positions over all
+the point's observed frames are kept. Where a turning surface overlaps itself in the image,
+the nearest points in a single frame can lie on the far side (on a face, 0.85-0.97 of its
+size away in 3D), and a single frame's neighbours gave one point an error of 0.40 of the
+tracks' RMS.
+
+Cost, for n filled points of F frames, P points, rank r: a k-d tree of the reliable points per
+frame used (O(F P log P)), the candidates' trajectories O(F n c r) for c candidates, the weights
+O(F n k^2); nothing P x P.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from moju_core.missing import LowRank, expand_mask
+
+__all__ = ["NEIGHBOURS", "borrow_columns"]
+
+#: Neighbours whose columns are combined. 4, 8 and 16 gave the same error at the hidden
+#: entries of the lost tracks (face3, 2,000 points, seed 0: 0.0131, 0.0128, 0.0135 of the
+#: tracks' RMS).
+NEIGHBOURS = 8
+#: Candidates per frame searched, as a multiple of :data:`NEIGHBOURS`.
+CANDIDATE_FACTOR = 4
+#: Ridge of the weights' normal equations, relative to their mean diagonal: it keeps the
+#: weights defined when a point is seen in fewer frames than it has neighbours.
+WEIGHT_RIDGE = 1e-3
+#: Entries of the (2F, points, candidates) arrays processed at once.
+_BLOCK_ENTRIES = 2_000_000
+
+
+def borrow_columns(
+    model: LowRank, W: np.ndarray, visibility: np.ndarray, reliable: np.ndarray
+) -> tuple[LowRank, np.ndarray]:
+    """The model with the columns of the points that have unreliable entries borrowed.
+
+    Parameters
+    ----------
+    model : LowRank
+        Fitted on the observed entries (:func:`moju_core.missing.complete`).
+    W : ndarray of shape (2F, P)
+        Measurements (finite values, e.g. 0.0, at the unobserved entries).
+    visibility : ndarray of shape (F, P), bool
+        True where observed.
+    reliable : ndarray of shape (F, P), bool
+        The entries the model predicts well (:func:`moju_core.missing.trusted_entries`).
+
+    Returns
+    -------
+    model : LowRank
+        The same left factor and translation; the borrowed points' columns replaced.
+    borrowed : ndarray of shape (P,), bool
+        The points whose columns were replaced (none when no point is reliable throughout).
+    """
+    reference = np.flatnonzero(reliable.all(axis=0))
+    needing = np.flatnonzero(~reliable.all(axis=0))
+    borrowed = np.zeros(W.shape[1], dtype=bool)
+    k = min(NEIGHBOURS, reference.size)
+    if needing.size == 0 or k == 0:
+        return model, borrowed
+    candidates = _candidates(model, W, visibility, needing, reference, CANDIDATE_FACTOR * k)
+    right = model.right.copy()
+    step = _block(W.shape[0], candidates.shape[1])
+    for start in range(0, needing.size, step):
+        points = needing[start : start + step]
+        rows = expand_mask(visibility[:, points])
+        neighbours = _closest(model, W[:, points], rows, candidates[start : start + step], k)
+        weights = _affine_weights(model.values(neighbours.ravel()), W[:, points], rows, k)
+        right[:, points] = np.einsum("rnk,nk->rn", model.right[:, neighbours], weights)
+    borrowed[needing] = True
+    return LowRank(model.left, right, model.translation), borrowed
+
+
+def _block(n_rows: int, n_candidates: int) -> int:
+    """Points per block, so that the (2F, points, candidates) arrays stay small."""
+    return max(1, _BLOCK_ENTRIES // (n_rows * n_candidates))
+
+
+def _candidates(
+    model: LowRank,
+    W: np.ndarray,
+    visibility: np.ndarray,
+    points: np.ndarray,
+    reference: np.ndarray,
+    per_frame: int,
+) -> np.ndarray:
+    """Nearest reference points in the image at each point's first, middle and last observed
+    frames, (n, 3 c) indices (c = ``per_frame``, capped by the reference points)."""
+    per_frame = min(per_frame, reference.size)
+    seen = [np.flatnonzero(visibility[:, j]) for j in points]
+    roles = [np.array([frames[i] for frames in seen]) for i in (0, -1)]
+    roles.append(np.array([frames[frames.size // 2] for frames in seen]))
+    pools = []
+    for frames in roles:
+        pool = np.empty((points.size, per_frame), dtype=np.int64)
+        for frame in np.unique(frames):
+            rows = slice(2 * frame, 2 * frame + 2)
+            positions = model.left[rows] @ model.right[:, reference]
+            at = frames == frame
+            query = W[rows, points[at]] - model.translation[rows, None]
+            _, nearest = cKDTree(positions.T).query(query.T, k=per_frame)
+            pool[at] = reference[np.asarray(nearest).reshape(-1, per_frame)]
+        pools.append(pool)
+    return np.hstack(pools)
+
+
+def _closest(
+    model: LowRank, tracks: np.ndarray, rows: np.ndarray, candidates: np.ndarray, k: int
+) -> np.ndarray:
+    """Of each point's candidates (repeats allowed), the k distinct ones whose model positions
+    are closest to the point's observed positions over its observed rows, (n, k).
+
+    tracks : (2F, n); rows : (2F, n) bool, the observed rows; candidates : (n, c).
+    """
+    candidates = np.sort(candidates, axis=1)
+    n, c = candidates.shape
+    values = model.values(candidates.ravel()).reshape(-1, n, c)
+    distance = np.einsum("rnc,rn->nc", (values - tracks[:, :, None]) ** 2, rows.astype(float))
+    repeated = np.zeros_like(candidates, dtype=bool)
+    repeated[:, 1:] = candidates[:, 1:] == candidates[:, :-1]
+    distance[repeated] = np.inf
+    order = np.argsort(distance, axis=1, kind="stable")[:, :k]
+    return np.take_along_axis(candidates, order, axis=1)
+
+
+def _affine_weights(values: np.ndarray, tracks: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
+    """Weights summing to one that best reproduce each point's observed positions from its
+    neighbours' model positions, ``min ||sum_i w_i (x_i - y)||^2`` over the observed rows,
+    with a small ridge (:data:`WEIGHT_RIDGE`), (n, k).
+
+    values : (2F, n k) neighbours' model positions; tracks : (2F, n); rows : (2F, n) bool.
+    """
+    n = tracks.shape[1]
+    offsets = (values.reshape(-1, n, k) - tracks[:, :, None]) * rows[:, :, None]
+    gram = np.einsum("rnk,rnl->nkl", offsets, offsets)
+    ridge = WEIGHT_RIDGE * np.trace(gram, axis1=1, axis2=2) / k + 1e-300
+    gram += ridge[:, None, None] * np.eye(k)
+    weights = np.linalg.solve(gram, np.ones((n, k, 1)))[:, :, 0]
+    return weights / weights.sum(axis=1, keepdims=True)

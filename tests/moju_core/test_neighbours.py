@@ -1,0 +1,92 @@
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from moju_core import missing, neighbours
+from moju_core.datasets import make_sequence, occlusion_mask
+
+
+def _borrow(W, visibility, rank=None):
+    hidden = np.where(missing.expand_mask(visibility), W, 0.0)
+    if rank is None:
+        model = missing.complete(hidden, visibility)
+    else:
+        model = missing.complete_at_rank(hidden, visibility, rank)
+    reliable = missing.trusted_entries(model, visibility)
+    return model, reliable, *neighbours.borrow_columns(model, hidden, visibility, reliable)
+
+
+def _rms(error, mask):
+    return float(np.sqrt(np.mean(error[missing.expand_mask(mask)] ** 2)))
+
+
+def test_tracks_lost_early_are_predicted_from_their_neighbours_far_better_than_alone():
+    data = make_sequence("face3", n_points=800, n_frames=60, seed=0)
+    visibility = occlusion_mask(data, band=0.0, lost=0.15, dropout=0.0, seed=0)
+    model, reliable, filled, borrowed = _borrow(data.W, visibility)
+    assert borrowed.any()
+    assert_array_equal(borrowed, ~reliable.all(axis=0))
+    hidden = ~visibility & borrowed[None, :]
+    alone = _rms(model.values() - data.W, hidden)
+    together = _rms(filled.values() - data.W, hidden)
+    assert together < 0.2 * alone
+    # The reliable points and the model's left factor and translation are untouched.
+    assert_array_equal(filled.right[:, ~borrowed], model.right[:, ~borrowed])
+    assert filled.left is model.left and filled.translation is model.translation
+
+
+def _two_sheets(n_frames=12, side=12):
+    """A sliding sheet and a static sheet, seen from the front, that coincide in the image in
+    frame 0: (2F, 2 side^2), the sliding sheet's points first; rank 3 with the translation."""
+    grid = np.stack(np.meshgrid(np.linspace(0, 1, side), np.linspace(0, 1, side)), 0)
+    grid = grid.reshape(2, -1)
+    rows = []
+    for f in range(n_frames):
+        shift = [[0.1 * f], [0.05 * f]]
+        rows.append(np.hstack([grid + np.array(shift), grid]))
+    return np.vstack(rows)
+
+
+def test_neighbours_come_from_the_points_trajectory_not_from_one_frame_where_surfaces_overlap():
+    W = _two_sheets()
+    n_frames, n_points = W.shape[0] // 2, W.shape[1]
+    visibility = np.ones((n_frames, n_points), dtype=bool)
+    lost = np.arange(n_points // 2, n_points, 7)  # points of the static sheet, lost after frame 3
+    visibility[4:, lost] = False
+    hidden = np.where(missing.expand_mask(visibility), W, 0.0)
+    model = missing.complete_at_rank(hidden, visibility, 3)
+    filled, borrowed = neighbours.borrow_columns(model, W, visibility, reliable=visibility)
+    assert_array_equal(borrowed, np.isin(np.arange(n_points), lost))
+    # The static sheet's points stay where they were; the nearest points in frame 0 are
+    # those of the sliding sheet, which would carry them along.
+    assert_allclose(filled.values()[:, lost], W[:, lost], atol=5e-3)
+
+
+def test_an_affine_combination_of_the_neighbours_reproduces_a_point_of_a_rigid_plane():
+    rng = np.random.default_rng(1)
+    n_frames, n_points = 30, 400
+    plane = np.vstack([rng.uniform(-1, 1, (2, n_points)), np.zeros((1, n_points))])
+    angles = np.linspace(0, 1.2, n_frames)
+    W = np.vstack(
+        [
+            np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0]]) @ plane
+            + np.array([[0.1 * a], [-0.2 * a]])
+            for a in angles
+        ]
+    )
+    visibility = np.ones((n_frames, n_points), dtype=bool)
+    visibility[3:, :20] = False  # 20 points seen in the first three frames only
+    model, reliable, filled, borrowed = _borrow(W, visibility, rank=2)
+    assert borrowed[:20].all()
+    assert_allclose(filled.values()[:, :20], W[:, :20], atol=5e-3)
+
+
+@pytest.mark.parametrize("lost", [0.0, 0.05])
+def test_no_point_is_borrowed_when_every_entry_is_reliable_or_none_is(lost):
+    data = make_sequence("face1", n_points=200, seed=0)
+    visibility = occlusion_mask(data, band=0.0, lost=lost, dropout=0.05, seed=0)
+    model, reliable, filled, borrowed = _borrow(data.W, visibility)
+    assert borrowed.sum() == (~reliable.all(axis=0)).sum()
+    none_reliable = np.zeros_like(visibility)
+    same, nothing = neighbours.borrow_columns(model, data.W, visibility, none_reliable)
+    assert same is model and not nothing.any()
