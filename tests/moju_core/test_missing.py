@@ -9,7 +9,7 @@ from moju_core.cameras import projection
 from moju_core.cameras.refinement import project_to_stiefel
 from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.errors import MeasurementError
-from moju_core.metrics import e3d
+from moju_core.metrics import e3d, rotation_error_deg
 
 
 def _with_nan(W, visibility):
@@ -249,7 +249,7 @@ def test_the_cameras_with_missing_data_use_the_well_seen_points_model_values():
     visibility = np.ones((30, 100), bool)
     visibility[5:, :40] = False  # points 0-39 seen in 5 of 30 frames
     model = missing.complete_at_rank(W, visibility, 4)
-    tracks, decomposition = solver._camera_tracks(model, visibility, 2.0)
+    tracks, decomposition = solver._camera_tracks(model, visibility, 2.0, None)
     singular = decomposition.singular
     assert tracks.shape == (60, 60)
     expected = model.values(np.arange(40, 100))
@@ -257,3 +257,30 @@ def test_the_cameras_with_missing_data_use_the_well_seen_points_model_values():
     assert_allclose(tracks, expected)
     truth = np.linalg.svd(expected, compute_uv=False)[: singular.size]
     assert_allclose(singular, truth, atol=1e-6 * truth[0])  # the Gram route resolves ~1e-8
+
+
+def test_noisy_tracks_with_missing_data_give_the_cameras_their_filled_tracks():
+    from moju_core import solver
+
+    rng = np.random.default_rng(7)
+    W = _low_rank_w(rng, n_points=100)
+    visibility = np.ones((30, 100), bool)
+    visibility[5:, :40] = False
+    model = missing.complete_at_rank(W, visibility, 4)
+    filled = model.fill(W + 0.01 * rng.standard_normal(W.shape), visibility)
+    tracks, decomposition = solver._camera_tracks(model, visibility, 2.0, filled)
+    expected = filled[:, 40:] - filled[:, 40:].mean(axis=1, keepdims=True)
+    assert_allclose(tracks, expected)
+    assert not np.allclose(tracks, solver._camera_tracks(model, visibility, 1.0, None)[0])
+
+
+def test_noisy_tracks_with_missing_data_get_cameras_as_good_as_complete_tracks():
+    # At 3 % noise the completion's rank (4) is too low for the cameras: on its model values
+    # they were 5.5 degrees off, on the filled tracks 1.4, on the complete tracks 1.2.
+    data = make_sequence("face3", n_points=2000, noise=0.03, seed=0)
+    visibility = occlusion_mask(data, band=0.2, lost=0.1, dropout=0.02, seed=0)
+    params = SolverParams(max_iter=1, smoothness=0.0)
+    result = reconstruct(_with_nan(data.W, visibility), params)
+    complete = reconstruct(data.W, params)
+    errors = [rotation_error_deg(r.rotations, data.rotations) for r in (result, complete)]
+    assert errors[0] < 1.5 * errors[1] + 0.5
