@@ -67,6 +67,11 @@ ALS_RIDGE = 1e-5
 #: at 3,000 but face4 (seed 1) then breaks (0.051 -> 0.099), and trusting every entry gives
 #: 0.028 / 0.029 (face4 0.12).
 TRUSTED_LEVERAGE = 1000.0
+#: A point seen in at least this fraction of the frames is well seen: its column of the model
+#: is fitted on as many frames as it predicts. The camera step uses these points
+#: (:func:`moju_core.solver._camera_tracks`), and points seen less borrow their columns from
+#: them (:mod:`moju_core.neighbours`).
+WELL_SEEN = 0.5
 
 
 @dataclass(frozen=True)
@@ -129,6 +134,11 @@ def _relative_variance(features: np.ndarray, mask: np.ndarray) -> np.ndarray:
     inverses = np.linalg.inv(normals + ridge)  # (m, k, k)
     variance = np.einsum("ia,mab,ib->im", features, inverses, features)
     return variance / np.maximum(base, 1e-300)[:, None]
+
+
+def well_seen(visibility: np.ndarray) -> np.ndarray:
+    """The points seen in at least :data:`WELL_SEEN` of the frames, (P,) bool."""
+    return visibility.mean(axis=0) >= WELL_SEEN
 
 
 def expand_mask(visibility: np.ndarray) -> np.ndarray:

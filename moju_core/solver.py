@@ -313,9 +313,8 @@ def _reconstruct(
     )
 
 
-#: With missing data the cameras are estimated from the points seen in at least this fraction
-#: of the frames (all points when fewer than :data:`CAMERA_MIN_POINTS` are).
-CAMERA_MIN_SEEN = 0.5
+#: With missing data the cameras are estimated from the well-seen points
+#: (:func:`moju_core.missing.well_seen`), or all points when fewer than this are.
 CAMERA_MIN_POINTS = 20
 
 
@@ -324,7 +323,7 @@ def _camera_tracks(
 ) -> tuple[np.ndarray, Spectrum]:
     """Centred, normalised tracks for the camera step with missing data, and their spectrum.
 
-    The points seen in at least :data:`CAMERA_MIN_SEEN` of the frames. Noise-free tracks
+    The well-seen points (:func:`moju_core.missing.well_seen`). Noise-free tracks
     (``filled`` None) give their values in the low-rank model; noisy ones their filled tracks
     ``filled`` (2F, P; centred, normalised): observed values, model values at the hidden
     entries.
@@ -338,7 +337,7 @@ def _camera_tracks(
       noise-free), whose model values lose what the cameras need: rotations 4.8-5.5 degrees
       off, against 1.4 on the filled tracks (0.9-1.2 on complete tracks).
     """
-    seen = observed.mean(axis=0) >= CAMERA_MIN_SEEN
+    seen = missing.well_seen(observed)
     if seen.sum() < CAMERA_MIN_POINTS:
         seen = np.ones_like(seen)
     columns = np.flatnonzero(seen)

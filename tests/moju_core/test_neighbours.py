@@ -25,12 +25,12 @@ def test_tracks_lost_early_are_predicted_from_their_neighbours_far_better_than_a
     visibility = occlusion_mask(data, band=0.0, lost=0.15, dropout=0.0, seed=0)
     model, reliable, filled, borrowed = _borrow(data.W, visibility)
     assert borrowed.any()
-    assert_array_equal(borrowed, ~reliable.all(axis=0))
+    assert_array_equal(borrowed, ~reliable.all(axis=0) & ~missing.well_seen(visibility))
     hidden = ~visibility & borrowed[None, :]
     alone = _rms(model.values() - data.W, hidden)
     together = _rms(filled.values() - data.W, hidden)
     assert together < 0.2 * alone
-    # The reliable points and the model's left factor and translation are untouched.
+    # The other points and the model's left factor and translation are untouched.
     assert_array_equal(filled.right[:, ~borrowed], model.right[:, ~borrowed])
     assert filled.left is model.left and filled.translation is model.translation
 
@@ -81,12 +81,29 @@ def test_an_affine_combination_of_the_neighbours_reproduces_a_point_of_a_rigid_p
     assert_allclose(filled.values()[:, :20], W[:, :20], atol=5e-3)
 
 
+def test_a_well_seen_point_keeps_its_own_column_even_with_unreliable_entries():
+    data = make_sequence("face1", n_points=200, seed=0)
+    visibility = occlusion_mask(data, band=0.0, lost=0.0, dropout=0.05, seed=0)
+    hidden = np.where(missing.expand_mask(visibility), data.W, 0.0)
+    model = missing.complete(hidden, visibility)
+    reliable = np.ones_like(visibility)
+    reliable[-1, :10] = False  # points 0-9 unreliable in the last frame, seen in most frames
+    reliable[2:, 10:15] = visibility[2:, 10:15] = False  # points 10-14 seen in two frames only
+    filled, borrowed = neighbours.borrow_columns(model, hidden, visibility, reliable)
+    assert_array_equal(np.flatnonzero(borrowed), np.arange(10, 15))
+    assert_array_equal(filled.right[:, :10], model.right[:, :10])
+
+
 @pytest.mark.parametrize("lost", [0.0, 0.05])
-def test_no_point_is_borrowed_when_every_entry_is_reliable_or_none_is(lost):
+def test_no_point_is_borrowed_when_every_entry_is_reliable_or_no_point_is_well_seen(lost):
     data = make_sequence("face1", n_points=200, seed=0)
     visibility = occlusion_mask(data, band=0.0, lost=lost, dropout=0.05, seed=0)
     model, reliable, filled, borrowed = _borrow(data.W, visibility)
-    assert borrowed.sum() == (~reliable.all(axis=0)).sum()
-    none_reliable = np.zeros_like(visibility)
-    same, nothing = neighbours.borrow_columns(model, data.W, visibility, none_reliable)
+    expected = ~reliable.all(axis=0) & ~missing.well_seen(visibility)
+    assert_array_equal(borrowed, expected)
+    if lost == 0.0:
+        assert not borrowed.any() and filled is model
+    seen_twice = np.zeros_like(visibility)
+    seen_twice[:2] = True
+    same, nothing = neighbours.borrow_columns(model, data.W, seen_twice, seen_twice)
     assert same is model and not nothing.any()
