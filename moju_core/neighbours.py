@@ -6,20 +6,28 @@ point lost at frame 5 of 99) does not determine that column: on a face with 10 %
 lost from a random frame on, the model's error at those tracks' hidden entries was 0.33 of the
 tracks' RMS, against 0.012 at the other hidden entries.
 
-Its neighbours on the surface do move like it. So the column of every point that is seen in
-fewer than half the frames (:func:`moju_core.missing.well_seen`) and has an unreliable entry
-(:func:`moju_core.missing.trusted_entries` false) is replaced by an affine combination of the
-columns of nearby well-seen points, with the weights that best reproduce the point's observed
-image positions from those neighbours' (the local reconstruction weights of locally linear
-embedding, Roweis and Saul 2000). The weights sum to one, so the combination is a point of
-the neighbours' local affine hull and the model's translation carries over; a surface that is
+Its neighbours on the surface do move like it. So the model's values of W are corrected in two
+steps, each from the well-seen points (:func:`moju_core.missing.well_seen`), in the
+neighbours' current values, with the weights that best reproduce the point's observed image
+positions from its neighbours' (the local reconstruction weights of locally linear embedding,
+Roweis and Saul 2000). The weights sum to one, so the combination is a point of the
+neighbours' local affine hull and the model's translation carries over; a surface that is
 locally close to affine in its deformation keeps the same weights in every frame.
 
-A well-seen point keeps its own column: it is fitted on as many frames as it predicts. Under
-a wide occluder (a band over 30 % of the width with 15 % of the tracks lost, 1,000 points)
-borrowing for every point with an unreliable entry replaced 70-90 % of the columns of the
-paper and the cloth from the few points never occluded, and their e3D doubled (paper seed 0:
-0.072 -> 0.153); with the well-seen rule it is 0.039.
+1. A well-seen point's unreliable entries (:func:`moju_core.missing.trusted_entries` false)
+   take the combination of its neighbours' values there; its other entries keep the model's.
+   Its neighbours are, before any other, points that are reliable wherever it is unreliable.
+   The model's unreliable entries of well-seen points can be far off: on a face under a band
+   over 20 % of the width (seed 3, 2,000 points) their error was 2.5 times the tracks' RMS,
+   0.70 once corrected.
+2. Every other point with an unreliable entry takes the combination in all its frames: the
+   points seen in fewer than half the frames, whose own observations do not fix their column.
+
+A well-seen point keeps the model's values where they are reliable: it is fitted on as many
+frames as it predicts. Under a wide occluder (a band over 30 % of the width with 15 % of the
+tracks lost, 1,000 points) replacing every frame of every point with an unreliable entry
+replaced 70-90 % of the points of the paper and the cloth from the few never occluded, and
+their e3D doubled (paper seed 0: 0.072 -> 0.153; with the two steps 0.036).
 
 Neighbours are chosen by their image trajectories, not by one frame: candidates are the
 nearest well-seen points in the image at the point's first, middle and last observed frames (a
@@ -30,7 +38,7 @@ size away in 3D), and a single frame's neighbours gave one point 20 times the av
 
 Cost, for n filled points of F frames, P points, rank r: a k-d tree of the well-seen points per
 frame used (O(F P log P)), the candidates' trajectories O(F n c r) for c candidates, the weights
-O(F n k^2); nothing P x P.
+O(F n k^2), and the model's values O(F P r); nothing P x P.
 """
 
 from __future__ import annotations
@@ -40,7 +48,7 @@ from scipy.spatial import cKDTree
 
 from moju_core.missing import LowRank, expand_mask, well_seen
 
-__all__ = ["NEIGHBOURS", "borrow_columns"]
+__all__ = ["NEIGHBOURS", "borrow_values"]
 
 #: Neighbours whose columns are combined. 4, 8 and 16 gave about the same error at the hidden
 #: entries of the lost tracks (face3, 2,000 points, seed 0, neighbours found in one frame:
@@ -56,11 +64,10 @@ WEIGHT_RIDGE = 1e-3
 _BLOCK_ENTRIES = 2_000_000
 
 
-def borrow_columns(
+def borrow_values(
     model: LowRank, W: np.ndarray, visibility: np.ndarray, reliable: np.ndarray
-) -> tuple[LowRank, np.ndarray]:
-    """The model with the columns of the points that are not well seen and have unreliable
-    entries borrowed from their well-seen neighbours.
+) -> tuple[np.ndarray, np.ndarray]:
+    """The model's values of W with the unreliable ones taken from the points' neighbours.
 
     Parameters
     ----------
@@ -75,29 +82,66 @@ def borrow_columns(
 
     Returns
     -------
-    model : LowRank
-        The same left factor and translation; the borrowed points' columns replaced.
+    values : ndarray of shape (2F, P)
+        ``model.values()`` with the unreliable entries of the well-seen points and every
+        entry of the other points with an unreliable entry replaced (none when no point is
+        well seen).
     borrowed : ndarray of shape (P,), bool
-        The points whose columns were replaced (none when no point is well seen).
+        The points whose every entry was replaced.
     """
+    values = model.values()
     seen = well_seen(visibility)
     reference = np.flatnonzero(seen)
-    needing = np.flatnonzero(~seen & ~reliable.all(axis=0))
+    unreliable = ~reliable & ~visibility
+    partial = np.flatnonzero(seen & unreliable.any(axis=0))
+    if partial.size and reference.size > 1:
+        combined = _combine(model, values, W, visibility, partial, reference, unreliable)
+        rows = expand_mask(unreliable[:, partial])
+        block = values[:, partial]
+        block[rows] = combined[rows]
+        values[:, partial] = block
+    lost = np.flatnonzero(~seen & unreliable.any(axis=0))
     borrowed = np.zeros(W.shape[1], dtype=bool)
-    k = min(NEIGHBOURS, reference.size)
-    if needing.size == 0 or k == 0:
-        return model, borrowed
-    candidates = _candidates(model, W, visibility, needing, reference, CANDIDATE_FACTOR * k)
-    right = model.right.copy()
+    if lost.size and reference.size:
+        values[:, lost] = _combine(model, values, W, visibility, lost, reference)
+        borrowed[lost] = True
+    return values, borrowed
+
+
+def _combine(
+    model: LowRank,
+    values: np.ndarray,
+    W: np.ndarray,
+    visibility: np.ndarray,
+    points: np.ndarray,
+    reference: np.ndarray,
+    unreliable: np.ndarray | None = None,
+) -> np.ndarray:
+    """Each point's affine combination of its neighbours' ``values``, (2F, n).
+
+    The neighbours are reference points other than the point itself; with ``unreliable``
+    ((F, P) bool), those unreliable at none of the point's unreliable frames come first.
+    """
+    k = min(NEIGHBOURS, reference.size - int(unreliable is not None))
+    candidates = _candidates(model, W, visibility, points, reference, CANDIDATE_FACTOR * (k + 1))
+    combined = np.empty((W.shape[0], points.size))
     step = _block(W.shape[0], candidates.shape[1])
-    for start in range(0, needing.size, step):
-        points = needing[start : start + step]
-        rows = expand_mask(visibility[:, points])
-        neighbours = _closest(model, W[:, points], rows, candidates[start : start + step], k)
-        weights = _affine_weights(model.values(neighbours.ravel()), W[:, points], rows, k)
-        right[:, points] = np.einsum("rnk,nk->rn", model.right[:, neighbours], weights)
-    borrowed[needing] = True
-    return LowRank(model.left, right, model.translation), borrowed
+    for start in range(0, points.size, step):
+        block = slice(start, start + step)
+        chosen, rows = points[block], expand_mask(visibility[:, points[block]])
+        avoid = None
+        if unreliable is not None:
+            avoid = _conflicts(unreliable, chosen, candidates[block])
+        neighbours = _closest(values, W[:, chosen], rows, candidates[block], k, chosen, avoid)
+        weights = _affine_weights(values[:, neighbours.ravel()], W[:, chosen], rows, k)
+        combined[:, block] = np.einsum("rnk,nk->rn", values[:, neighbours], weights)
+    return combined
+
+
+def _conflicts(unreliable: np.ndarray, points: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Whether each candidate is unreliable at one of its point's unreliable frames, (n, c)."""
+    both = unreliable[:, candidates] & unreliable[:, points][:, :, None]
+    return both.any(axis=0)
 
 
 def _block(n_rows: int, n_candidates: int) -> int:
@@ -134,22 +178,34 @@ def _candidates(
 
 
 def _closest(
-    model: LowRank, tracks: np.ndarray, rows: np.ndarray, candidates: np.ndarray, k: int
+    values: np.ndarray,
+    tracks: np.ndarray,
+    rows: np.ndarray,
+    candidates: np.ndarray,
+    k: int,
+    points: np.ndarray,
+    avoid: np.ndarray | None,
 ) -> np.ndarray:
-    """Of each point's candidates (repeats allowed), the k distinct ones whose model positions
-    are closest to the point's observed positions over its observed rows, (n, k).
+    """Of each point's candidates (repeats allowed), the k distinct ones other than the point
+    whose values are closest to the point's observed positions over its observed rows, those
+    not marked in ``avoid`` first, (n, k).
 
-    tracks : (2F, n); rows : (2F, n) bool, the observed rows; candidates : (n, c).
+    values : (2F, P); tracks : (2F, n); rows : (2F, n) bool, the observed rows;
+    candidates : (n, c); points : (n,); avoid : (n, c) bool or None.
     """
-    candidates = np.sort(candidates, axis=1)
+    order = np.argsort(candidates, axis=1, kind="stable")
+    candidates = np.take_along_axis(candidates, order, axis=1)
     n, c = candidates.shape
-    values = model.values(candidates.ravel()).reshape(-1, n, c)
-    distance = np.einsum("rnc,rn->nc", (values - tracks[:, :, None]) ** 2, rows.astype(float))
-    repeated = np.zeros_like(candidates, dtype=bool)
-    repeated[:, 1:] = candidates[:, 1:] == candidates[:, :-1]
-    distance[repeated] = np.inf
-    order = np.argsort(distance, axis=1, kind="stable")[:, :k]
-    return np.take_along_axis(candidates, order, axis=1)
+    near = values[:, candidates.ravel()].reshape(-1, n, c)
+    distance = np.einsum("rnc,rn->nc", (near - tracks[:, :, None]) ** 2, rows.astype(float))
+    excluded = np.zeros_like(candidates, dtype=bool)
+    excluded[:, 1:] = candidates[:, 1:] == candidates[:, :-1]
+    excluded |= candidates == points[:, None]
+    rank = excluded * 2
+    if avoid is not None:
+        rank = np.maximum(rank, np.take_along_axis(avoid, order, axis=1))
+    chosen = np.lexsort((distance, rank), axis=1)[:, :k]
+    return np.take_along_axis(candidates, chosen, axis=1)
 
 
 def _affine_weights(values: np.ndarray, tracks: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:

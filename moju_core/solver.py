@@ -169,16 +169,16 @@ def _reconstruct(
         rotations = check_rotations(rotations, n_frames)
     # Sizes first, with the messages the service gives at submission (moju_core.feasibility).
     feasibility.check_fit(params, n_frames, n_points, has_rotations=rotations is not None)
-    model, fitted, borrowed = None, observed, False
+    values, fitted, borrowed = None, observed, False
     if observed is not None:
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
-        # completion of W (moju_core.missing), with the points it does not determine filled
-        # from their neighbours (moju_core.neighbours).
+        # completion of W (moju_core.missing), with the entries it does not determine filled
+        # from the points' neighbours (moju_core.neighbours).
         model = missing.complete(W, observed)
         reliable = missing.trusted_entries(model, observed)
-        model, borrowed_points = neighbours.borrow_columns(model, W, observed, reliable)
+        values, borrowed_points = neighbours.borrow_values(model, W, observed, reliable)
         borrowed = bool(borrowed_points.any())
-        W = model.fill(W, observed)
+        W = np.where(missing.expand_mask(observed), W, values)
         # The entries the loop fits: the observed ones, the hidden ones the low-rank model
         # predicts well and those of the borrowed points, at their model values. The
         # smoothness trials fit the observed ones only: their rule compares misfits of ~1e-4
@@ -203,9 +203,9 @@ def _reconstruct(
         estimate = cameras.CameraEstimate(rotations, "known")
     else:
         camera_tracks, camera_decomposition = centred, decomposition
-        if model is not None:
+        if values is not None:
             filled = centred if noise > defaults.EXACT_DATA_NOISE else None
-            camera_tracks, camera_decomposition = _camera_tracks(model, observed, scale, filled)
+            camera_tracks, camera_decomposition = _camera_tracks(values, observed, scale, filled)
         estimate = cameras.estimate_cameras(
             camera_tracks,
             params.rotations,
@@ -319,14 +319,15 @@ CAMERA_MIN_POINTS = 20
 
 
 def _camera_tracks(
-    model: missing.LowRank, observed: np.ndarray, scale: float, filled: np.ndarray | None
+    values: np.ndarray, observed: np.ndarray, scale: float, filled: np.ndarray | None
 ) -> tuple[np.ndarray, Spectrum]:
     """Centred, normalised tracks for the camera step with missing data, and their spectrum.
 
     The well-seen points (:func:`moju_core.missing.well_seen`). Noise-free tracks
-    (``filled`` None) give their values in the low-rank model; noisy ones their filled tracks
-    ``filled`` (2F, P; centred, normalised): observed values, model values at the hidden
-    entries.
+    (``filled`` None) give their ``values`` (2F, P: the low-rank model's, with the unreliable
+    entries from the neighbours, :func:`moju_core.neighbours.borrow_values`); noisy ones their
+    filled tracks ``filled`` (2F, P; centred, normalised): observed values, ``values`` at the
+    hidden entries.
 
     * Noise-free, the filled tracks mix exact observed values with the model's errors at the
       hidden entries, whose spectrum has no floor (face3, 2,000 points, combined occlusion:
@@ -342,13 +343,12 @@ def _camera_tracks(
         seen = np.ones_like(seen)
     columns = np.flatnonzero(seen)
     if filled is not None:
-        values = filled[:, columns]
-        values = values - values.mean(axis=1, keepdims=True)
+        tracks = filled[:, columns]
+        tracks = tracks - tracks.mean(axis=1, keepdims=True)
     else:
-        values = model.values(columns)
-        values -= values.mean(axis=1, keepdims=True)
-        values /= scale
-    return values, spectrum(values)
+        tracks = values[:, columns]
+        tracks = (tracks - tracks.mean(axis=1, keepdims=True)) / scale
+    return tracks, spectrum(tracks)
 
 
 def _resolve_rotation_method(params: SolverParams, given: bool) -> SolverParams:
