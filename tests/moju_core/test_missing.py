@@ -285,3 +285,31 @@ def test_noisy_tracks_with_missing_data_get_cameras_as_good_as_complete_tracks()
     complete = reconstruct(data.W, params)
     errors = [rotation_error_deg(r.rotations, data.rotations) for r in (result, complete)]
     assert errors[0] < 1.5 * errors[1] + 0.5
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.05])
+def test_the_noise_is_read_from_the_fully_observed_blocks_not_from_the_filled_entries(sigma):
+    from moju_core.spectrum import noise_variance
+
+    rng = np.random.default_rng(8)
+    W = _low_rank_w(rng, n_rows=120, n_points=400) + sigma * rng.standard_normal((120, 400))
+    visibility = occlusion_mask(make_sequence("face3", n_points=400, n_frames=60, seed=0),
+                                band=0.2, lost=0.1, dropout=0.02, seed=0)  # fmt: skip
+    # The filled entries carry an error that no low-rank model explains.
+    filled = np.where(missing.expand_mask(visibility), W, W + 0.3 * rng.standard_normal(W.shape))
+    measured = missing.observed_noise_variance(filled, visibility)
+    from_filled = noise_variance(np.linalg.svd(filled, compute_uv=False), filled.shape)
+    assert from_filled > sigma**2 + 1e-3
+    if sigma == 0.0:
+        assert measured < 1e-12
+    else:
+        assert measured == pytest.approx(sigma**2, rel=0.2)
+
+
+def test_no_noise_is_read_without_a_block_of_fully_observed_points():
+    W = np.ones((2 * missing.NOISE_WINDOW - 2, 50))
+    assert missing.observed_noise_variance(W, np.ones((W.shape[0] // 2, 50), bool)) is None
+    visibility = np.ones((30, 50), bool)
+    visibility[:, : 50 - 2 * missing.NOISE_WINDOW + 1] = False  # one point too few seen always
+    W = np.ones((60, 50))
+    assert missing.observed_noise_variance(W, visibility) is None
