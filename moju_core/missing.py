@@ -72,8 +72,8 @@ ALS_RIDGE = 1e-5
 TRUSTED_LEVERAGE = 1000.0
 #: A point seen in at least this fraction of the frames is well seen: its column of the model
 #: is fitted on as many frames as it predicts. The camera step uses these points
-#: (:func:`moju_core.solver._camera_tracks`), and points seen less borrow their columns from
-#: them (:mod:`moju_core.neighbours`).
+#: (:func:`moju_core.solver._camera_points`), and the entries the model does not determine
+#: are taken from them (:mod:`moju_core.neighbours`).
 WELL_SEEN = 0.5
 #: Frames per block of the noise estimate with missing data (:func:`observed_noise_variance`).
 #: Within 10 frames the deformations of these sequences have a rank below the block's 20 rows;

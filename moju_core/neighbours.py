@@ -55,7 +55,8 @@ __all__ = ["NEIGHBOURS", "borrow_values"]
 #: 0.0131, 0.0128, 0.0135 of the tracks' RMS); in the full solve 8 and 16 gave e3D equal to
 #: 1 % on seeds 0-1.
 NEIGHBOURS = 8
-#: Candidates per frame searched, as a multiple of :data:`NEIGHBOURS`.
+#: Candidates per frame searched, as a multiple of :data:`NEIGHBOURS` + 1 (a well-seen point is
+#: among its own candidates).
 CANDIDATE_FACTOR = 4
 #: Ridge of the weights' normal equations, relative to their mean diagonal: it keeps the
 #: weights defined when a point is seen in fewer frames than it has neighbours.
