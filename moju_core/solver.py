@@ -222,6 +222,9 @@ def _reconstruct(
         rotations = estimate.rotations
         # Result.params records what "auto" chose, so that it can be run again as it ran.
         params = params.model_copy(update={"rotations": estimate.source})
+        camera_tracks = None
+    # The loop does not read the model's values: a (2F, P) copy fewer while it runs.
+    values = None
     n_bases = estimate.n_bases if estimate.n_bases is not None else params.n_bases
     timings["rotations"] = time.perf_counter() - tic
 
