@@ -316,3 +316,15 @@ def test_no_noise_is_read_without_a_block_of_fully_observed_points():
     visibility[:, : 50 - 2 * missing.NOISE_WINDOW + 1] = False  # one point too few seen always
     W = np.ones((60, 50))
     assert missing.observed_noise_variance(W, visibility) is None
+
+
+def test_noise_free_tracks_with_missing_data_are_read_as_noise_free_and_keep_their_cameras():
+    # On the filled W the completion's errors read 1.7e-5 here, above the exact-fit
+    # threshold: the camera step took the noisy path and chose the windowed cameras.
+    data = make_sequence("bumps-osc", n_points=2000, seed=1)
+    visibility = occlusion_mask(data, band=0.2, lost=0.1, dropout=0.02, seed=1)
+    params = SolverParams(max_iter=1, smoothness=0.0)
+    result = reconstruct(_with_nan(data.W, visibility), params)
+    complete = reconstruct(data.W, params)
+    assert result.diagnostics.noise_variance < 1e-10
+    assert result.diagnostics.rotation_source == complete.diagnostics.rotation_source
