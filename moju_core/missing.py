@@ -18,8 +18,10 @@ the observed entries only (:class:`LowRank`):
   runs of consecutive frames of some points (they mimic tracks that end and occluders; random
   entries alone choose ranks too high for those patterns).
 
-The solver also uses the model beyond the filled W: the camera step factorises the well-seen
-points' model values (:func:`moju_core.solver._camera_tracks`), and the loop fits the hidden
+The solver also uses the model beyond the filled W: the camera step factorises the model values
+of the well-seen points whose entries are all reliable (:func:`moju_core.solver._camera_points`),
+the noise level is read from the fully observed blocks (:func:`observed_noise_variance`), and
+the loop fits the hidden
 entries whose prediction is reliable (:meth:`LowRank.leverage`, :func:`trusted_entries`) as if
 they were observed.
 

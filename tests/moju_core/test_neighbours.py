@@ -101,7 +101,7 @@ def test_a_well_seen_point_keeps_its_reliable_values_and_takes_its_neighbours_el
 
 
 def test_a_well_seen_points_unreliable_entries_come_from_neighbours_reliable_there():
-    # A sheet under a band: the model's values at the band's unreliable entries are off; the
+    # A sparse face under a band: the model's values at the band's unreliable entries are off; the
     # neighbours' combination is much closer to the truth there.
     data = make_sequence("face4", n_points=41, n_frames=350, seed=1)
     visibility = occlusion_mask(data, band=0.2, lost=0.1, dropout=0.02, seed=1)
