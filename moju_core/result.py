@@ -139,6 +139,10 @@ class Diagnostics:
         square of the projected tracks, dimensionless); empty when it was not chosen.
     trajectory_basis : TrajectoryBasisFit or None
         Method ``"pta"`` only: the conditioning of its solve.
+    signal_fit : bool
+        Whether the loop fitted noisy tracks exactly after projecting them onto their signal
+        subspace (:mod:`moju_core.signal_fit`); ``smoothness_trials`` are then the trials on
+        the projected tracks.
     """
 
     n_groups_used: int
@@ -150,6 +154,7 @@ class Diagnostics:
     observed_fraction: float = 1.0
     smoothness_trials: tuple[tuple[float, float], ...] = ()
     trajectory_basis: TrajectoryBasisFit | None = None
+    signal_fit: bool = False
 
     def __post_init__(self) -> None:
         if self.rotation_source not in get_args(RotationSource):

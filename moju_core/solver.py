@@ -32,6 +32,7 @@ from moju_core.result import (
     StopReason,
     TrajectoryBasisFit,
 )
+from moju_core.signal_fit import signal_fit
 from moju_core.smoothness import choose_smoothness
 from moju_core.spectrum import Spectrum, noise_variance, significant_rank, spectrum
 from moju_core.validation import check_observations, check_rotations
@@ -240,6 +241,7 @@ def _reconstruct(
     # Again with the values derived from the data.
     feasibility.check_fit(params, n_frames, n_points, has_rotations=True)
     smoothness_trials: list[tuple[float, float]] = []
+    signal_fitted = False
     if params.smoothness is None:
 
         def trial_hook(iteration: int, gap: float, rho: float) -> bool:
@@ -257,6 +259,19 @@ def _reconstruct(
             exact_fit=fits_exactly(exact_data, fitted, estimate.refine, defaults.MIN_DEPTH_PRIOR),
         )
         params = params.model_copy(update={"smoothness": weight})
+        fit = None
+        if _tries_signal_fit(params, noise, observed, estimate.source):
+            fit = signal_fit(tracks, rotations, params, signal_basis, hook=trial_hook)
+        if fit is not None:
+            # Noisy tracks the soft rule kept at a weak prior: fitted exactly once projected
+            # onto their signal subspace (moju_core/signal_fit.py).
+            tracks, exact_data, smoothness_trials = fit.tracks, True, fit.trials
+            centred = tracks.reshape(2 * n_frames, n_points)
+            params = params.model_copy(update={"smoothness": fit.smoothness})
+            if derive_unshrunk and params.free_mean_shape:
+                unshrunk = defaults.unshrunk_values(rotations)
+                params = params.model_copy(update={"unshrunk_values": unshrunk})
+        signal_fitted = fit is not None
     if derive_unshrunk:
         unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness)
         params = params.model_copy(update={"unshrunk_values": unshrunk})
@@ -317,8 +332,29 @@ def _reconstruct(
             noise_variance=float(noise * scale**2),
             observed_fraction=float(visibility.mean()),
             smoothness_trials=tuple(smoothness_trials),
+            signal_fit=signal_fitted,
             trajectory_basis=out.trajectory_basis,
         ),
+    )
+
+
+def _tries_signal_fit(
+    params: SolverParams, noise: float, observed: np.ndarray | None, rotation_source: str
+) -> bool:
+    """Whether the solve tries the exact fit of the projected tracks (moju_core/signal_fit.py).
+
+    Complete noisy tracks, known cameras, a local-model method (moju, sdg), and a soft rule
+    that chose a weight too low to set the depths. Estimated cameras are left out: an exact
+    fit trusts them, and on the noisy oscillating sheets, whose estimates are 20-30 degrees
+    off, it raised e3D (bumps-osc, 1 % noise, seed 5: 0.171 -> 0.323).
+    """
+    return (
+        params.method in ("moju", "sdg")
+        and noise > defaults.EXACT_DATA_NOISE
+        and observed is None
+        and rotation_source == "known"
+        and params.smoothness is not None
+        and params.smoothness < defaults.MIN_DEPTH_PRIOR
     )
 
 

@@ -1,0 +1,74 @@
+"""The exact fit of noisy tracks projected onto their signal subspace (moju_core.signal_fit)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from moju_core import SolverParams, reconstruct
+from moju_core.datasets import make_sequence
+from moju_core.metrics import e3d
+from moju_core.signal_fit import project_tracks
+
+
+def test_project_tracks_is_the_orthogonal_projection():
+    rng = np.random.default_rng(0)
+    tracks = rng.normal(size=(6, 2, 40))
+    basis, _ = np.linalg.qr(rng.normal(size=(12, 3)))
+    once = project_tracks(tracks, basis)
+    np.testing.assert_allclose(project_tracks(once, basis), once, atol=1e-12)
+    residual = (tracks - once).reshape(12, 40)
+    np.testing.assert_allclose(basis.T @ residual, 0.0, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def noisy_oscillating_sheet():
+    return make_sequence("bumps-osc", n_points=1_000, noise=0.01, seed=0)
+
+
+@pytest.fixture(scope="module")
+def signal_fitted(noisy_oscillating_sheet):
+    data = noisy_oscillating_sheet
+    return reconstruct(data.W, SolverParams(seed=0), rotations=data.rotations)
+
+
+def test_noisy_sheet_under_an_oscillating_camera_takes_the_noise_free_settings(signal_fitted):
+    result = signal_fitted
+    assert result.diagnostics.signal_fit
+    # The exact fit's depth-setting weight and unshrunk deformations, as for noise-free tracks.
+    assert result.params.smoothness >= 10.0
+    assert result.params.unshrunk_values > 1
+
+
+def test_the_signal_fit_recovers_depth_the_soft_fit_loses(noisy_oscillating_sheet, signal_fitted):
+    data = noisy_oscillating_sheet
+    # The soft rule's own choice, given explicitly: the solve as it ran before the signal fit.
+    weak_weight = SolverParams(seed=0, smoothness=1.0)
+    soft = reconstruct(data.W, weak_weight, rotations=data.rotations)
+    assert not soft.diagnostics.signal_fit
+    assert e3d(signal_fitted.shapes, data.shapes) < 0.5 * e3d(soft.shapes, data.shapes)
+
+
+def test_short_sequences_keep_the_soft_fit_unchanged():
+    data = make_sequence("face1", n_points=600, noise=0.02, seed=1)
+    result = reconstruct(data.W, SolverParams(seed=1), rotations=data.rotations)
+    assert not result.diagnostics.signal_fit
+    assert result.params.smoothness < 10.0
+    same = reconstruct(
+        data.W, SolverParams(seed=1, smoothness=result.params.smoothness), rotations=data.rotations
+    )
+    np.testing.assert_array_equal(result.shapes, same.shapes)
+
+
+def test_noise_free_incomplete_or_estimated_camera_solves_never_take_it():
+    clean = make_sequence("bumps-osc", n_points=400, seed=1)
+    assert not reconstruct(clean.W, rotations=clean.rotations).diagnostics.signal_fit
+    noisy = make_sequence("bumps-osc", n_points=400, noise=0.01, seed=1)
+    visibility = np.ones((noisy.n_frames, noisy.n_points), dtype=bool)
+    visibility[5:20, :40] = False
+    W = noisy.W.copy()
+    W[np.repeat(~visibility, 2, axis=0)] = np.nan
+    result = reconstruct(W, rotations=noisy.rotations, visibility=visibility)
+    assert not result.diagnostics.signal_fit
+    # An exact fit trusts the cameras; estimated ones keep the soft fit.
+    assert not reconstruct(noisy.W, SolverParams(seed=1)).diagnostics.signal_fit
