@@ -3,6 +3,7 @@ of alternating fresh processes.
 
     python benchmarks/side_by_side.py --base c4487c1 --sequences bumps-osc face3 --seeds 0 5
     python benchmarks/side_by_side.py --base HEAD~3 --rotations estimated --repeats 3
+    python benchmarks/side_by_side.py --base HEAD~1 --noise 0.01 0.03 --points 2000
 
 ``--base`` is any git revision of this repository; it is checked out into a temporary
 worktree, and every solve runs once per repeat in a fresh process of each version, the two
@@ -37,7 +38,8 @@ from moju_core import SolverParams, reconstruct
 from moju_core.datasets import make_sequence
 from moju_core.metrics import evaluate
 name, seed, n_points, source = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
-data = make_sequence(name, n_points=n_points, seed=seed)
+noise = float(sys.argv[5])
+data = make_sequence(name, n_points=n_points, seed=seed, noise=noise)
 known = source == "known"
 params = SolverParams(seed=seed, **({"rotations": "known"} if known else {}))
 with threadpool_limits(limits=1):
@@ -52,24 +54,34 @@ print(json.dumps({
 """
 
 
-def solve_in(tree: Path, name: str, seed: int, n_points: int, source: str) -> dict[str, Any]:
+def solve_in(
+    tree: Path, name: str, seed: int, n_points: int, source: str, noise: float
+) -> dict[str, Any]:
     """One solve in a fresh interpreter that imports ``moju_core`` from ``tree``."""
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
-    args = [sys.executable, "-c", SOLVE, name, str(seed), str(n_points), source]
+    args = [sys.executable, "-c", SOLVE, name, str(seed), str(n_points), source, str(noise)]
     done = subprocess.run(args, cwd=tree, env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"{name} seed {seed} in {tree} failed:\n{done.stderr[-2000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def compare(base: Path, name: str, seed: int, source: str, repeats: int) -> dict[str, Any]:
+def compare(
+    base: Path,
+    name: str,
+    seed: int,
+    source: str,
+    repeats: int,
+    noise: float = 0.0,
+    n_points: int | None = None,
+) -> dict[str, Any]:
     """Alternating solves of the base and of this checkout; the row of one comparison."""
-    n_points = POINTS.get(name, DEFAULT_POINTS)
+    n_points = n_points or POINTS.get(name, DEFAULT_POINTS)
     runs: dict[str, list[dict[str, Any]]] = {"base": [], "new": []}
     for _ in range(repeats):
-        runs["base"].append(solve_in(base, name, seed, n_points, source))
-        runs["new"].append(solve_in(ROOT, name, seed, n_points, source))
-    row: dict[str, Any] = {"sequence": name, "seed": seed, "rotations": source}
+        runs["base"].append(solve_in(base, name, seed, n_points, source, noise))
+        runs["new"].append(solve_in(ROOT, name, seed, n_points, source, noise))
+    row: dict[str, Any] = {"sequence": name, "seed": seed, "rotations": source, "noise": noise}
     row["n_points"] = n_points
     for label, results in runs.items():
         first = results[0]
@@ -83,7 +95,8 @@ def compare(base: Path, name: str, seed: int, source: str, repeats: int) -> dict
 def describe(row: dict[str, Any]) -> str:
     base, new = row["base"], row["new"]
     return (
-        f"{row['sequence']} s{row['seed']} {row['rotations']}: e3D {base['e3d']:.4f} -> "
+        f"{row['sequence']} s{row['seed']} {row['rotations']} noise {row.get('noise', 0.0):g}: "
+        f"e3D {base['e3d']:.4f} -> "
         f"{new['e3d']:.4f} (weight {base['smoothness']:g} -> {new['smoothness']:g}), time "
         f"{base['seconds']:.1f} -> {new['seconds']:.1f} s ({row['time_ratio']:.2f}x)"
     )
@@ -96,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
     parser.add_argument("--rotations", nargs="+", default=["known"])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--noise", nargs="+", type=float, default=[0.0], help="lambda_g levels")
+    parser.add_argument("--points", type=int, default=None, help="points (default: per sequence)")
     parser.add_argument("--output-dir", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     meta = provenance(sys.argv if argv is None else ["side_by_side.py", *argv])
@@ -108,8 +123,9 @@ def main(argv: list[str] | None = None) -> int:
         )
         try:
             rows = [
-                compare(base, name, seed, source, args.repeats)
+                compare(base, name, seed, source, args.repeats, noise, args.points)
                 for name in args.sequences
+                for noise in args.noise
                 for seed in args.seeds
                 for source in args.rotations
             ]
@@ -122,12 +138,12 @@ def main(argv: list[str] | None = None) -> int:
     meta["base"] = args.base
     write_json(args.output_dir / "side_by_side.json", meta, rows=rows)
     body = [
-        [r["sequence"], r["seed"], r["rotations"], f"{r['base']['e3d']:.4f}"]
+        [r["sequence"], r["seed"], r["rotations"], f"{r['noise']:g}", f"{r['base']['e3d']:.4f}"]
         + [f"{r['new']['e3d']:.4f}", f"{r['base']['smoothness']:g}", f"{r['new']['smoothness']:g}"]
         + [f"{r['base']['seconds']:.2f}", f"{r['new']['seconds']:.2f}", f"{r['time_ratio']:.2f}"]
         for r in rows
     ]
-    header = ["sequence", "seed", "rotations", "e3D base", "e3D now", "weight base"]
+    header = ["sequence", "seed", "rotations", "lambda_g", "e3D base", "e3D now", "weight base"]
     header += ["weight now", "s base", "s now", "time ratio"]
     write_markdown(
         args.output_dir / "side_by_side.md",
