@@ -344,7 +344,7 @@ def _tries_signal_fit(
     """Whether the solve tries the exact fit of the projected tracks (moju_core/signal_fit.py).
 
     Complete noisy tracks, known cameras, a local-model method (moju, sdg), and a soft rule
-    that chose a weight too low to set the depths. Estimated cameras are left out: an exact
+    that chose a weight of at most the depth-setting one. Estimated cameras are left out: an exact
     fit trusts them, and on the noisy oscillating sheets, whose estimates are 20-30 degrees
     off, it raised e3D (bumps-osc, 1 % noise, seed 5: 0.171 -> 0.323).
     """
@@ -354,7 +354,7 @@ def _tries_signal_fit(
         and observed is None
         and rotation_source == "known"
         and params.smoothness is not None
-        and params.smoothness < defaults.MIN_DEPTH_PRIOR
+        and params.smoothness <= defaults.MIN_DEPTH_PRIOR
     )
 
 
