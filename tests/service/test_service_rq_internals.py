@@ -6,6 +6,7 @@ job, ``Job.cancel``) and checks that the private reads agree with what RQ's publ
 
 from __future__ import annotations
 
+import time
 from datetime import timezone
 
 import pytest
@@ -35,6 +36,8 @@ def what_the_job_sees_of_itself() -> dict:
         "status": state.status,
         "started": state.started,
         "rq_started": job.started_at.replace(tzinfo=timezone.utc).timestamp(),
+        "enqueued": job.enqueued_at.replace(tzinfo=timezone.utc).timestamp(),
+        "running_at": time.time(),
         "in_started_registry": job.id in started_rq_job_ids(QUEUE, job.connection),
     }
 
@@ -67,7 +70,11 @@ def test_a_running_job_is_read_as_started_at_rq_s_start_time(queue: Queue, redis
     seen = RQJob.fetch(job.id, connection=redis_client).return_value()
     assert seen is not None, "the job did not run"
     assert seen["status"] == "started"
-    assert seen["started"] == pytest.approx(seen["rq_started"], abs=1e-3)
+    # The start RQ stored when it took the job: after the enqueueing, before the job body ran.
+    # RQ may refresh its in-memory start a moment later (2.6 ms on a loaded machine), so the
+    # two are compared for being the same event, not to the millisecond.
+    assert seen["enqueued"] <= seen["started"] <= seen["running_at"] + 1e-6
+    assert seen["started"] == pytest.approx(seen["rq_started"], abs=1.0)
     assert seen["in_started_registry"]
     # After the run: ended, as RQ's public API says.
     state = parse_rq_state(read_rq_state(redis_client, job.id))
