@@ -31,6 +31,7 @@ from moju_core import admm
 from moju_core.defaults import MIN_DEPTH_PRIOR
 from moju_core.params import SolverParams
 from moju_core.smoothness import choose_smoothness
+from moju_core.spectrum import project_tracks
 
 
 @dataclass(frozen=True)
@@ -51,25 +52,6 @@ class SignalFit:
     tracks: np.ndarray
     smoothness: float
     trials: list[tuple[float, float]]
-
-
-def project_tracks(tracks: np.ndarray, basis: np.ndarray) -> np.ndarray:
-    """``U U^T W``: the tracks projected onto an orthonormal basis of the frame side.
-
-    Parameters
-    ----------
-    tracks : ndarray of shape (F, 2, P)
-    basis : ndarray of shape (2F, r)
-        Orthonormal columns (the signal subspace of W).
-
-    Returns
-    -------
-    ndarray of shape (F, 2, P)
-        O(F P r).
-    """
-    n_frames, _, n_points = tracks.shape
-    flat = tracks.reshape(2 * n_frames, n_points)
-    return (basis @ (basis.T @ flat)).reshape(n_frames, 2, n_points)
 
 
 def signal_fit(

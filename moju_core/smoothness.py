@@ -43,6 +43,7 @@ import numpy as np
 from moju_core import admm
 from moju_core.defaults import MIN_DEPTH_PRIOR
 from moju_core.params import SolverParams
+from moju_core.spectrum import project_tracks
 
 #: Weights tried, in increasing order (gamma relative to the data term of scale-normalised
 #: tracks; the prior's cut-off is near gamma^(-1/4) radians per frame).
@@ -131,8 +132,7 @@ def choose_smoothness(
         tracks = tracks[:, :, chosen]
         if observed is not None:
             observed = observed[:, chosen]
-    measurements = tracks.reshape(2 * n_frames, -1)
-    signal = signal_basis @ (signal_basis.T @ measurements)
+    signal = project_tracks(tracks, signal_basis).reshape(2 * n_frames, -1)
     if n_frames > SELECTION_FRAMES:
         first = (n_frames - SELECTION_FRAMES) // 2
         signal = signal[2 * first : 2 * (first + SELECTION_FRAMES)]

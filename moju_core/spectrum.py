@@ -156,3 +156,22 @@ def noise_variance(singular_values: np.ndarray, shape: tuple[int, int]) -> float
         rounding).
     """
     return noise_variance_beyond(singular_values, shape, significant_rank(singular_values, shape))
+
+
+def project_tracks(tracks: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """``U U^T W``: the tracks projected onto an orthonormal basis of the frame side.
+
+    Parameters
+    ----------
+    tracks : ndarray of shape (F, 2, P)
+    basis : ndarray of shape (2F, r)
+        Orthonormal columns (the signal subspace of W).
+
+    Returns
+    -------
+    ndarray of shape (F, 2, P)
+        O(F P r).
+    """
+    n_frames, _, n_points = tracks.shape
+    flat = tracks.reshape(2 * n_frames, n_points)
+    return (basis @ (basis.T @ flat)).reshape(n_frames, 2, n_points)

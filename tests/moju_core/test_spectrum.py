@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from moju_core.spectrum import noise_variance, significant_rank, spectrum
+from moju_core.spectrum import noise_variance, project_tracks, significant_rank, spectrum
 
 
 def _low_rank(n_rows: int, n_columns: int, rank: int, seed: int = 0) -> np.ndarray:
@@ -38,3 +38,13 @@ def test_rank_and_noise_of_a_low_rank_matrix_with_white_noise(sigma):
         assert noise_variance(s, W.shape) < 1e-12
     else:
         assert noise_variance(s, W.shape) == pytest.approx(sigma**2, rel=0.1)
+
+
+def test_project_tracks_is_the_orthogonal_projection():
+    rng = np.random.default_rng(0)
+    tracks = rng.normal(size=(6, 2, 40))
+    basis, _ = np.linalg.qr(rng.normal(size=(12, 3)))
+    once = project_tracks(tracks, basis)
+    np.testing.assert_allclose(project_tracks(once, basis), once, atol=1e-12)
+    residual = (tracks - once).reshape(12, 40)
+    np.testing.assert_allclose(basis.T @ residual, 0.0, atol=1e-12)
