@@ -27,10 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from moju_core import admm
 from moju_core.defaults import MIN_DEPTH_PRIOR
-from moju_core.params import SolverParams
-from moju_core.smoothness import choose_smoothness
+from moju_core.smoothness import SmoothnessChoice
 from moju_core.spectrum import project_tracks
 
 
@@ -55,38 +53,30 @@ class SignalFit:
 
 
 def signal_fit(
-    tracks: np.ndarray,
-    rotations: np.ndarray,
-    params: SolverParams,
-    signal_basis: np.ndarray,
-    *,
-    hook: admm.IterationHook | None = None,
+    tracks: np.ndarray, signal_basis: np.ndarray, choice: SmoothnessChoice
 ) -> SignalFit | None:
-    """The exact fit of the projected tracks, if its rule accepts a depth-setting weight.
+    """The exact fit of the projected tracks, if the exact fit's rule accepts a depth-setting
+    weight.
+
+    The smoothness trials already ran on the projected tracks
+    (:func:`moju_core.smoothness.choose_smoothness` projects them onto the same basis), so the
+    exact fit's weight comes from those trials: no further solve.
 
     Parameters
     ----------
     tracks : ndarray of shape (F, 2, P)
         Centred, scale-normalised, complete tracks.
-    rotations : ndarray of shape (F, 2, 3)
-        Fixed camera rotations (not refined by the loop).
-    params : SolverParams
-        Resolved parameters, as for :func:`moju_core.smoothness.choose_smoothness`.
     signal_basis : ndarray of shape (2F, r)
         Left singular vectors of W above the noise.
-    hook : callable, optional
-        Passed to the trial solves (progress, cancellation).
+    choice : SmoothnessChoice
+        The trials' choice on these tracks.
 
     Returns
     -------
     SignalFit or None
-        None when the rule chooses a weight below
-        :data:`~moju_core.defaults.MIN_DEPTH_PRIOR` for the projected tracks too.
+        None when the exact fit's rule chooses a weight below
+        :data:`~moju_core.defaults.MIN_DEPTH_PRIOR` too.
     """
-    projected = project_tracks(tracks, signal_basis)
-    weight, trials = choose_smoothness(
-        projected, rotations, params, signal_basis, hook=hook, exact_fit=True
-    )
-    if weight < MIN_DEPTH_PRIOR:
+    if choice.exact_weight < MIN_DEPTH_PRIOR:
         return None
-    return SignalFit(projected, weight, trials)
+    return SignalFit(project_tracks(tracks, signal_basis), choice.exact_weight, choice.trials)

@@ -38,6 +38,8 @@ allowance chose weight 1 on 6 of 8 design seeds (e3D 0.16-0.21) where 10 gave 0.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from moju_core import admm
@@ -77,6 +79,30 @@ TRIAL_LOOP_CONTROL = {
 }
 
 
+@dataclass(frozen=True)
+class SmoothnessChoice:
+    """The weights the trials allow, and the trials themselves.
+
+    Attributes
+    ----------
+    weight : float
+        The largest weight of :data:`SMOOTHNESS_GRID` within :data:`DEFORMATION_ALLOWANCE`:
+        the weight of a loop that fits the tracks softly.
+    exact_weight : float
+        The weight of a loop that fits the tracks exactly
+        (:func:`moju_core.loop_state.fits_exactly`): ``weight``, or
+        :data:`~moju_core.defaults.MIN_DEPTH_PRIOR` where ``weight`` is below it and that
+        weight's excess misfit is within :data:`EXACT_FIT_ALLOWANCE`.
+    trials : list of (float, float)
+        The weights tried, in increasing order, and their mean squared reprojection error
+        relative to the mean square of the (projected) tracks.
+    """
+
+    weight: float
+    exact_weight: float
+    trials: list[tuple[float, float]] = field(default_factory=list)
+
+
 def choose_smoothness(
     tracks: np.ndarray,
     rotations: np.ndarray,
@@ -86,9 +112,9 @@ def choose_smoothness(
     refine_rotations: bool = False,
     hook: admm.IterationHook | None = None,
     observed: np.ndarray | None = None,
-    exact_fit: bool = False,
-) -> tuple[float, list[tuple[float, float]]]:
-    """The largest weight of :data:`SMOOTHNESS_GRID` whose misfit the tracks allow.
+) -> SmoothnessChoice:
+    """The largest weights of :data:`SMOOTHNESS_GRID` whose misfit the tracks allow, for a
+    soft and for an exact fit (one set of trial solves serves both).
 
     Parameters
     ----------
@@ -111,21 +137,15 @@ def choose_smoothness(
         Where the points are observed (None: all). The trial solves then fit the observed
         entries only, so that the completion of the hidden ones (``tracks`` holds it there)
         does not count as misfit.
-    exact_fit : bool, default False
-        Whether the solve fits the tracks exactly at weight :data:`MIN_DEPTH_PRIOR`
-        (:func:`moju_core.loop_state.fits_exactly`); that weight is then allowed the larger
-        excess :data:`EXACT_FIT_ALLOWANCE`.
 
     Returns
     -------
-    smoothness : float
-    trials : list of (weight, misfit)
-        The weights tried, in increasing order, and their mean squared reprojection error
-        relative to the mean square of the (projected) tracks.
+    SmoothnessChoice
+        All weights 0 and no trials when there are fewer than 3 frames or no signal.
     """
     n_frames, _, n_points = tracks.shape
     if n_frames < 3 or signal_basis.shape[1] == 0:
-        return 0.0, []  # no second differences, or nothing above the noise
+        return SmoothnessChoice(0.0, 0.0)  # no second differences, or nothing above the noise
     if n_points > SELECTION_POINTS:
         rng = np.random.default_rng(params.seed)
         chosen = np.sort(rng.choice(n_points, SELECTION_POINTS, replace=False))
@@ -172,16 +192,16 @@ def choose_smoothness(
             low = middle
         else:
             high = middle
-    chosen = SMOOTHNESS_GRID[low]
-    if chosen < MIN_DEPTH_PRIOR and exact_fit:
-        # The bisection's first trial is the grid's middle, MIN_DEPTH_PRIOR: usually no new solve.
+    chosen = exact = SMOOTHNESS_GRID[low]
+    if chosen < MIN_DEPTH_PRIOR:
+        # The bisection's first trial is the grid's middle, MIN_DEPTH_PRIOR: no new solve.
         tried = dict(trials)
         depth_misfit = (
             tried[MIN_DEPTH_PRIOR] if MIN_DEPTH_PRIOR in tried else misfit(MIN_DEPTH_PRIOR)
         )
         if depth_misfit - unsmoothed <= EXACT_FIT_ALLOWANCE * deformation:
-            chosen = MIN_DEPTH_PRIOR
-    return chosen, sorted(trials)
+            exact = MIN_DEPTH_PRIOR
+    return SmoothnessChoice(chosen, exact, sorted(trials))
 
 
 def non_rigid_energy(singular_values: np.ndarray) -> float:

@@ -248,7 +248,7 @@ def _reconstruct(
             report("initialising")  # raises Cancelled when the callback asks to stop
             return False
 
-        weight, smoothness_trials = choose_smoothness(
+        choice = choose_smoothness(
             tracks,
             rotations,
             params,
@@ -256,12 +256,14 @@ def _reconstruct(
             refine_rotations=estimate.refine,
             hook=trial_hook,
             observed=observed,
-            exact_fit=fits_exactly(exact_data, fitted, estimate.refine, defaults.MIN_DEPTH_PRIOR),
         )
+        exact = fits_exactly(exact_data, fitted, estimate.refine, defaults.MIN_DEPTH_PRIOR)
+        smoothness_trials = choice.trials
+        weight = choice.exact_weight if exact else choice.weight
         params = params.model_copy(update={"smoothness": weight})
         fit = None
         if _tries_signal_fit(params, noise, observed, estimate.source):
-            fit = signal_fit(tracks, rotations, params, signal_basis, hook=trial_hook)
+            fit = signal_fit(tracks, signal_basis, choice)
         if fit is not None:
             # Noisy tracks the soft rule kept at a weak prior: fitted exactly once projected
             # onto their signal subspace (moju_core/signal_fit.py).

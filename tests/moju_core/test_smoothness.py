@@ -14,9 +14,8 @@ def _choose(
     n_points: int = 800,
     noise: float = 0.0,
     seed: int = 0,
-    exact_fit: bool = False,
     **overrides,
-):
+) -> smoothness.SmoothnessChoice:
     data = make_sequence(name, n_points=n_points, noise=noise, seed=seed)
     centred, _ = normalise(data.W)
     n_frames = data.n_frames
@@ -32,34 +31,35 @@ def _choose(
     )
     left, singular, _ = np.linalg.svd(centred, full_matrices=False)
     basis = left[:, : significant_rank(singular, centred.shape)]
-    return smoothness.choose_smoothness(tracks, data.rotations, params, basis, exact_fit=exact_fit)
+    return smoothness.choose_smoothness(tracks, data.rotations, params, basis)
 
 
 def test_ten_frames_of_changing_expressions_get_no_prior():
-    weight, trials = _choose("face2")
+    choice = _choose("face2")
+    weight, trials = choice.weight, choice.trials
     assert weight == 0.0
     assert [w for w, _ in trials][:2] == [0.0, 0.1]
 
 
 @pytest.mark.parametrize(("name", "noise"), [("paper", 0.0), ("cloth", 0.0), ("paper", 0.03)])
 def test_a_turning_camera_over_slow_deformation_gets_the_prior(name, noise):
-    weight, _ = _choose(name, noise=noise)
-    assert weight >= 10.0
+    assert _choose(name, noise=noise).weight >= 10.0
 
 
 def test_the_allowance_decides_and_bisection_needs_four_trials(monkeypatch):
-    weight, trials = _choose("face3", n_points=500)
+    choice = _choose("face3", n_points=500)
+    weight, trials = choice.weight, choice.trials
     assert 0.0 < weight < smoothness.SMOOTHNESS_GRID[-1]  # measured: 100
     assert len(trials) == 4  # the weight without the prior, then three bisection steps
     misfits = dict(trials)
     assert all(misfits[w] >= misfits[0.0] * (1 - 1e-6) for w in misfits)
     # No allowance: only a weight that costs nothing at all could pass.
     monkeypatch.setattr(smoothness, "DEFORMATION_ALLOWANCE", 0.0)
-    strict, _ = _choose("face3", n_points=500)
+    strict = _choose("face3", n_points=500).weight
     assert strict < weight
     # Any misfit allowed: the largest weight of the grid.
     monkeypatch.setattr(smoothness, "DEFORMATION_ALLOWANCE", 1e6)
-    assert _choose("face3", n_points=500)[0] == smoothness.SMOOTHNESS_GRID[-1]
+    assert _choose("face3", n_points=500).weight == smoothness.SMOOTHNESS_GRID[-1]
 
 
 def test_trial_solves_ignore_the_callers_loop_controls():
@@ -79,10 +79,11 @@ def test_too_few_frames_or_no_signal_give_no_prior():
     params = SolverParams()
     tracks = np.random.default_rng(0).standard_normal((2, 2, 50))
     rotations = np.broadcast_to(np.eye(3)[:2], (2, 2, 3))
-    assert smoothness.choose_smoothness(tracks, rotations, params, np.eye(4)) == (0.0, [])
+    none = smoothness.SmoothnessChoice(0.0, 0.0, [])
+    assert smoothness.choose_smoothness(tracks, rotations, params, np.eye(4)) == none
     tracks = np.random.default_rng(0).standard_normal((5, 2, 50))
     rotations = np.broadcast_to(np.eye(3)[:2], (5, 2, 3))
-    assert smoothness.choose_smoothness(tracks, rotations, params, np.zeros((10, 0))) == (0.0, [])
+    assert smoothness.choose_smoothness(tracks, rotations, params, np.zeros((10, 0))) == none
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -91,15 +92,14 @@ def test_an_exact_fit_allows_the_depth_setting_weight_where_the_trials_fit_softl
     exact fit keeps the observed motion (measured e3D, 10,000 points: 0.19-0.21 at weight 1,
     0.04 at 10)."""
     data = dict(n_points=10_000, seed=seed)
-    soft, trials = _choose("bumps-osc", **data)
-    exact, exact_trials = _choose("bumps-osc", exact_fit=True, **data)
-    assert soft < defaults.MIN_DEPTH_PRIOR
-    assert exact == defaults.MIN_DEPTH_PRIOR
-    assert exact_trials == trials  # the same trial solves: the weight 10 was among them
-    misfits = dict(trials)
+    choice = _choose("bumps-osc", **data)
+    assert choice.weight < defaults.MIN_DEPTH_PRIOR
+    assert choice.exact_weight == defaults.MIN_DEPTH_PRIOR
+    assert len(choice.trials) == 4  # the weight 10 was among the bisection's trials
+    misfits = dict(choice.trials)
     excess = misfits[defaults.MIN_DEPTH_PRIOR] - misfits[0.0]
     assert excess > 0
 
 
 def test_an_exact_fit_does_not_let_the_prior_smooth_changing_expressions():
-    assert _choose("face2", exact_fit=True)[0] == 0.0
+    assert _choose("face2").exact_weight == 0.0
