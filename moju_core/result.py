@@ -141,8 +141,8 @@ class Diagnostics:
         Method ``"pta"`` only: the conditioning of its solve.
     signal_fit : bool
         Whether the loop fitted noisy tracks exactly after projecting them onto their signal
-        subspace (:mod:`moju_core.signal_fit`); ``smoothness_trials`` are then the trials on
-        the projected tracks.
+        subspace (:mod:`moju_core.signal_fit`; with missing data, the completed tracks,
+        every entry); ``smoothness_trials`` are then the trials on the projected tracks.
     """
 
     n_groups_used: int

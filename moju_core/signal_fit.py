@@ -27,8 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from moju_core import admm
 from moju_core.defaults import MIN_DEPTH_PRIOR
-from moju_core.smoothness import SmoothnessChoice
+from moju_core.params import SolverParams
+from moju_core.smoothness import SmoothnessChoice, choose_smoothness
 from moju_core.spectrum import project_tracks
 
 
@@ -53,23 +55,35 @@ class SignalFit:
 
 
 def signal_fit(
-    tracks: np.ndarray, signal_basis: np.ndarray, choice: SmoothnessChoice
+    tracks: np.ndarray,
+    rotations: np.ndarray,
+    params: SolverParams,
+    signal_basis: np.ndarray,
+    *,
+    choice: SmoothnessChoice | None = None,
+    hook: admm.IterationHook | None = None,
 ) -> SignalFit | None:
     """The exact fit of the projected tracks, if the exact fit's rule accepts a depth-setting
     weight.
 
-    The smoothness trials already ran on the projected tracks
-    (:func:`moju_core.smoothness.choose_smoothness` projects them onto the same basis), so the
-    exact fit's weight comes from those trials: no further solve.
-
     Parameters
     ----------
     tracks : ndarray of shape (F, 2, P)
-        Centred, scale-normalised, complete tracks.
+        Centred, scale-normalised tracks, every entry filled (with missing data: the observed
+        values and the completion's at the hidden entries).
+    rotations : ndarray of shape (F, 2, 3)
+        Fixed camera rotations (not refined by the loop).
+    params : SolverParams
+        Resolved parameters, as for :func:`moju_core.smoothness.choose_smoothness`.
     signal_basis : ndarray of shape (2F, r)
         Left singular vectors of W above the noise.
-    choice : SmoothnessChoice
-        The trials' choice on these tracks.
+    choice : SmoothnessChoice, optional
+        The smoothness trials' choice on these tracks, when they fitted every entry (complete
+        tracks): :func:`moju_core.smoothness.choose_smoothness` projects onto the same basis,
+        so its exact weight is this rule's and no further solve runs. None (trials fitted on
+        the observed entries only): the trials run again on the projected tracks.
+    hook : callable, optional
+        Passed to the trial solves (progress, cancellation).
 
     Returns
     -------
@@ -77,6 +91,9 @@ def signal_fit(
         None when the exact fit's rule chooses a weight below
         :data:`~moju_core.defaults.MIN_DEPTH_PRIOR` too.
     """
+    projected = project_tracks(tracks, signal_basis)
+    if choice is None:
+        choice = choose_smoothness(projected, rotations, params, signal_basis, hook=hook)
     if choice.exact_weight < MIN_DEPTH_PRIOR:
         return None
-    return SignalFit(project_tracks(tracks, signal_basis), choice.exact_weight, choice.trials)
+    return SignalFit(projected, choice.exact_weight, choice.trials)

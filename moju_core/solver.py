@@ -262,12 +262,16 @@ def _reconstruct(
         weight = choice.exact_weight if exact else choice.weight
         params = params.model_copy(update={"smoothness": weight})
         fit = None
-        if _tries_signal_fit(params, noise, observed, estimate.source):
-            fit = signal_fit(tracks, signal_basis, choice)
+        if _tries_signal_fit(params, noise, estimate.source):
+            # With missing data the trials fitted the observed entries only: the projected
+            # completed tracks need their own.
+            reuse = choice if observed is None else None
+            fit = signal_fit(tracks, rotations, params, signal_basis, choice=reuse, hook=trial_hook)
         if fit is not None:
             # Noisy tracks the soft rule kept at a weak prior: fitted exactly once projected
             # onto their signal subspace (moju_core/signal_fit.py).
             tracks, exact_data, smoothness_trials = fit.tracks, True, fit.trials
+            fitted = None  # every entry, hidden ones at their completion, projected
             centred = tracks.reshape(2 * n_frames, n_points)
             params = params.model_copy(update={"smoothness": fit.smoothness})
             if derive_unshrunk and params.free_mean_shape:
@@ -340,20 +344,18 @@ def _reconstruct(
     )
 
 
-def _tries_signal_fit(
-    params: SolverParams, noise: float, observed: np.ndarray | None, rotation_source: str
-) -> bool:
+def _tries_signal_fit(params: SolverParams, noise: float, rotation_source: str) -> bool:
     """Whether the solve tries the exact fit of the projected tracks (moju_core/signal_fit.py).
 
-    Complete noisy tracks, known cameras, a local-model method (moju, sdg), and a soft rule
-    that chose a weight of at most the depth-setting one. Estimated cameras are left out: an exact
-    fit trusts them, and on the noisy oscillating sheets, whose estimates are 20-30 degrees
-    off, it raised e3D (bumps-osc, 1 % noise, seed 5: 0.171 -> 0.323).
+    Noisy tracks (complete, or completed where points are hidden), known cameras, a
+    local-model method (moju, sdg), and a soft rule that chose a weight of at most the
+    depth-setting one. Estimated cameras are left out: an exact fit trusts them, and on the
+    noisy oscillating sheets, whose estimates are 20-30 degrees off, it raised e3D (bumps-osc,
+    1 % noise, seed 5: 0.171 -> 0.323).
     """
     return (
         params.method in ("moju", "sdg")
         and noise > defaults.EXACT_DATA_NOISE
-        and observed is None
         and rotation_source == "known"
         and params.smoothness is not None
         and params.smoothness <= defaults.MIN_DEPTH_PRIOR
