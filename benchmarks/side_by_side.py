@@ -4,12 +4,15 @@ of alternating fresh processes.
     python benchmarks/side_by_side.py --base c4487c1 --sequences bumps-osc face3 --seeds 0 5
     python benchmarks/side_by_side.py --base HEAD~3 --rotations estimated --repeats 3
     python benchmarks/side_by_side.py --base HEAD~1 --noise 0.01 0.03 --points 2000
+    python benchmarks/side_by_side.py --base HEAD~1 --noise 0.02 --occlusion combined dropout-0.3
 
 ``--base`` is any git revision of this repository; it is checked out into a temporary
 worktree, and every solve runs once per repeat in a fresh process of each version, the two
 alternating, on one BLAS thread, so that both see the same machine load. The time is the
 median over the repeats of ``Result.timings["total"]``; the ratio is this checkout's over the
-base's. Writes ``side_by_side.json`` and ``side_by_side.md`` into ``--output-dir``.
+base's. ``--occlusion`` hides entries (:func:`moju_core.datasets.occlusion_mask`, seeded
+like the solve): ``combined`` is the missing-data benchmark's closing configuration. Writes
+``side_by_side.json`` and ``side_by_side.md`` into ``--output-dir``.
 """
 
 from __future__ import annotations
@@ -30,20 +33,32 @@ ROOT = Path(__file__).resolve().parent.parent
 #: Points per sequence: the faces at the size of the face rows, the rest at the hard size.
 POINTS = {"face1": 2_000, "face2": 2_000, "face3": 2_000, "face4": 2_000}
 DEFAULT_POINTS = 10_000
+#: ``--occlusion`` names -> :func:`moju_core.datasets.occlusion_mask` settings (None: complete).
+OCCLUSIONS: dict[str, dict[str, float] | None] = {
+    "none": None,
+    "combined": {"band": 0.2, "lost": 0.1, "dropout": 0.02},
+    "dropout-0.3": {"band": 0.0, "lost": 0.0, "dropout": 0.3},
+}
 
 SOLVE = r"""
 import json, sys
 from threadpoolctl import threadpool_limits
 from moju_core import SolverParams, reconstruct
-from moju_core.datasets import make_sequence
+import numpy as np
+from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.metrics import evaluate
 name, seed, n_points, source = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
-noise = float(sys.argv[5])
+noise, hide = float(sys.argv[5]), json.loads(sys.argv[6])
 data = make_sequence(name, n_points=n_points, seed=seed, noise=noise)
 known = source == "known"
 params = SolverParams(seed=seed, **({"rotations": "known"} if known else {}))
+W, visibility = data.W, None
+if hide is not None:
+    visibility = occlusion_mask(data, **hide, seed=seed)
+    W = np.where(np.repeat(visibility, 2, axis=0), data.W, np.nan)
 with threadpool_limits(limits=1):
-    result = reconstruct(data.W, params, rotations=data.rotations if known else None)
+    result = reconstruct(W, params, rotations=data.rotations if known else None,
+                         visibility=visibility)
 score = evaluate(result.shapes, data.shapes, result.rotations, data.rotations)
 print(json.dumps({
     "e3d": score["e3d_procrustes"], "rotation_error_deg": score["rotation_error_deg"],
@@ -55,11 +70,18 @@ print(json.dumps({
 
 
 def solve_in(
-    tree: Path, name: str, seed: int, n_points: int, source: str, noise: float
+    tree: Path,
+    name: str,
+    seed: int,
+    n_points: int,
+    source: str,
+    noise: float,
+    occlusion: str = "none",
 ) -> dict[str, Any]:
     """One solve in a fresh interpreter that imports ``moju_core`` from ``tree``."""
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
-    args = [sys.executable, "-c", SOLVE, name, str(seed), str(n_points), source, str(noise)]
+    hide = json.dumps(OCCLUSIONS[occlusion])
+    args = [sys.executable, "-c", SOLVE, name, str(seed), str(n_points), source, str(noise), hide]
     done = subprocess.run(args, cwd=tree, env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"{name} seed {seed} in {tree} failed:\n{done.stderr[-2000:]}")
@@ -74,14 +96,17 @@ def compare(
     repeats: int,
     noise: float = 0.0,
     n_points: int | None = None,
+    occlusion: str = "none",
 ) -> dict[str, Any]:
     """Alternating solves of the base and of this checkout; the row of one comparison."""
     n_points = n_points or POINTS.get(name, DEFAULT_POINTS)
     runs: dict[str, list[dict[str, Any]]] = {"base": [], "new": []}
+    case = (name, seed, n_points, source, noise, occlusion)
     for _ in range(repeats):
-        runs["base"].append(solve_in(base, name, seed, n_points, source, noise))
-        runs["new"].append(solve_in(ROOT, name, seed, n_points, source, noise))
+        runs["base"].append(solve_in(base, *case))
+        runs["new"].append(solve_in(ROOT, *case))
     row: dict[str, Any] = {"sequence": name, "seed": seed, "rotations": source, "noise": noise}
+    row["occlusion"] = occlusion
     row["n_points"] = n_points
     for label, results in runs.items():
         first = results[0]
@@ -95,7 +120,8 @@ def compare(
 def describe(row: dict[str, Any]) -> str:
     base, new = row["base"], row["new"]
     return (
-        f"{row['sequence']} s{row['seed']} {row['rotations']} noise {row.get('noise', 0.0):g}: "
+        f"{row['sequence']} s{row['seed']} {row['rotations']} noise {row.get('noise', 0.0):g}"
+        f" occlusion {row.get('occlusion', 'none')}: "
         f"e3D {base['e3d']:.4f} -> "
         f"{new['e3d']:.4f} (weight {base['smoothness']:g} -> {new['smoothness']:g}), time "
         f"{base['seconds']:.1f} -> {new['seconds']:.1f} s ({row['time_ratio']:.2f}x)"
@@ -111,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--noise", nargs="+", type=float, default=[0.0], help="lambda_g levels")
     parser.add_argument("--points", type=int, default=None, help="points (default: per sequence)")
+    parser.add_argument("--occlusion", nargs="+", choices=sorted(OCCLUSIONS), default=["none"])
     parser.add_argument("--output-dir", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     meta = provenance(sys.argv if argv is None else ["side_by_side.py", *argv])
@@ -123,9 +150,10 @@ def main(argv: list[str] | None = None) -> int:
         )
         try:
             rows = [
-                compare(base, name, seed, source, args.repeats, noise, args.points)
+                compare(base, name, seed, source, args.repeats, noise, args.points, occlusion)
                 for name in args.sequences
                 for noise in args.noise
+                for occlusion in args.occlusion
                 for seed in args.seeds
                 for source in args.rotations
             ]
@@ -138,12 +166,14 @@ def main(argv: list[str] | None = None) -> int:
     meta["base"] = args.base
     write_json(args.output_dir / "side_by_side.json", meta, rows=rows)
     body = [
-        [r["sequence"], r["seed"], r["rotations"], f"{r['noise']:g}", f"{r['base']['e3d']:.4f}"]
+        [r["sequence"], r["seed"], r["rotations"], f"{r['noise']:g}", r.get("occlusion", "none")]
+        + [f"{r['base']['e3d']:.4f}"]
         + [f"{r['new']['e3d']:.4f}", f"{r['base']['smoothness']:g}", f"{r['new']['smoothness']:g}"]
         + [f"{r['base']['seconds']:.2f}", f"{r['new']['seconds']:.2f}", f"{r['time_ratio']:.2f}"]
         for r in rows
     ]
-    header = ["sequence", "seed", "rotations", "lambda_g", "e3D base", "e3D now", "weight base"]
+    header = ["sequence", "seed", "rotations", "lambda_g", "occlusion", "e3D base", "e3D now"]
+    header += ["weight base"]
     header += ["weight now", "s base", "s now", "time ratio"]
     write_markdown(
         args.output_dir / "side_by_side.md",
