@@ -122,18 +122,34 @@ class LowRank:
         y rows: the larger). About 1 / (observed fraction) for dropout at random, large for a
         point seen in a few frames only or outside the frames it was seen in.
         """
+        return self.variance_factors(visibility)[0]
+
+    def variance_factors(self, visibility: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`leverage` and the prediction variance in units of the noise variance.
+
+        The second, (F, P), is the leverage's numerator not divided by its complete-data
+        value: the variance that white noise of variance 1 in the observed entries puts into
+        the prediction from the point's observed frames and from the frame's observed points
+        (the larger; x and y rows: the larger). Below 1 the prediction is as precise as a
+        measurement.
+        """
         mask = expand_mask(visibility).astype(np.float64)
         left = np.hstack([self.left, self.translation[:, None]])  # (2F, r + 1)
         right = np.vstack([self.right, np.ones((1, self.right.shape[1]))])  # (r + 1, P)
-        column = _relative_variance(left, mask)  # (2F, P)
-        row = _relative_variance(right.T, mask.T).T
-        entry = np.maximum(column, row)
-        return np.maximum(entry[0::2], entry[1::2])
+        column, column_base = _variance(left, mask)  # (2F, P), (2F,)
+        row, row_base = _variance(right.T, mask.T)  # (P, 2F), (P,)
+        relative = np.maximum(column / column_base[:, None], (row / row_base[:, None]).T)
+        absolute = np.maximum(column, row.T)
+        return (
+            np.maximum(relative[0::2], relative[1::2]),
+            np.maximum(absolute[0::2], absolute[1::2]),
+        )
 
 
-def _relative_variance(features: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """``x_i^T G_j^{-1} x_i / x_i^T G^{-1} x_i`` for every i (rows of ``features``) and j
-    (columns of ``mask``), G_j the normal matrix of the rows masked in for j."""
+def _variance(features: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``x_i^T G_j^{-1} x_i`` for every i (rows of ``features``) and j (columns of ``mask``),
+    G_j the normal matrix of the rows masked in for j; and ``x_i^T G^{-1} x_i`` (G over all
+    rows, floored at 1e-300)."""
     n, k = features.shape
     outer = (features[:, :, None] * features[:, None, :]).reshape(n, k * k)
     normals = (mask.T @ outer).reshape(-1, k, k)
@@ -143,7 +159,7 @@ def _relative_variance(features: np.ndarray, mask: np.ndarray) -> np.ndarray:
     base = np.einsum("ia,ab,ib->i", features, inverse_full, features)
     inverses = np.linalg.inv(normals + ridge)  # (m, k, k)
     variance = np.einsum("ia,mab,ib->im", features, inverses, features)
-    return variance / np.maximum(base, 1e-300)[:, None]
+    return variance, np.maximum(base, 1e-300)
 
 
 def well_seen(visibility: np.ndarray) -> np.ndarray:
@@ -306,10 +322,18 @@ def _solve_columns(features: np.ndarray, data: np.ndarray, weights: np.ndarray) 
     return np.linalg.solve(normals, rhs.T[:, :, None])[:, :, 0].T
 
 
-def trusted_entries(model: LowRank, visibility: np.ndarray) -> np.ndarray:
+def trusted_entries(model: LowRank, visibility: np.ndarray, *, noisy: bool = False) -> np.ndarray:
     """The observed entries and the hidden ones the model predicts well enough to use as data.
 
     A hidden entry is trusted when its :meth:`LowRank.leverage` is at most
-    :data:`TRUSTED_LEVERAGE`; a point seen in a few frames only is not.
+    :data:`TRUSTED_LEVERAGE`; a point seen in a few frames only is not. Of noisy tracks
+    (``noisy``), only where its prediction is also as precise as a measurement (the second
+    of :meth:`LowRank.variance_factors` at most 1): a less precise completion fitted as data
+    adds more noise than the measurements carry. Noise-free tracks have no such bound (the
+    model's error there is not noise; see :data:`TRUSTED_LEVERAGE`).
     """
-    return visibility | (model.leverage(visibility) <= TRUSTED_LEVERAGE)
+    leverage, variance = model.variance_factors(visibility)
+    trusted = leverage <= TRUSTED_LEVERAGE
+    if noisy:
+        trusted &= variance <= 1.0
+    return visibility | trusted

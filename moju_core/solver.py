@@ -176,7 +176,14 @@ def _reconstruct(
         # completion of W (moju_core.missing), with the entries it does not determine filled
         # from the points' neighbours (moju_core.neighbours).
         model = missing.complete(W, observed)
-        reliable = missing.trusted_entries(model, observed)
+        # The noise from the fully observed blocks, relative to the completed tracks' mean
+        # square; a completion less precise than a measurement of noisy tracks is not data.
+        block_noise = missing.observed_noise_variance(W, observed)
+        model_scale = normalise(model.fill(W, observed))[1]
+        noisy = block_noise is not None and (
+            block_noise / model_scale**2 > defaults.EXACT_DATA_NOISE
+        )
+        reliable = missing.trusted_entries(model, observed, noisy=noisy)
         values, borrowed_points = neighbours.borrow_values(model, W, observed, reliable)
         borrowed = bool(borrowed_points.any())
         W = np.where(missing.expand_mask(observed), W, values)
@@ -199,8 +206,7 @@ def _reconstruct(
     noise = noise_variance(singular, centred.shape)
     if observed is not None:
         # The filled entries' errors would count as noise (moju_core.missing).
-        measured = missing.observed_noise_variance(centred, observed)
-        noise = noise if measured is None else measured
+        noise = noise if block_noise is None else block_noise / scale**2
     # Borrowed tracks are interpolations, not measurements: fitting them exactly pinned the
     # completion's errors (docs/solver.md, "Missing data").
     exact_data = noise <= defaults.EXACT_DATA_NOISE and not borrowed
