@@ -14,6 +14,9 @@ noise. With known cameras, when the soft rule chooses a weight of at most
 exact fit's rule; if that rule accepts a depth-setting weight (at least
 ``MIN_DEPTH_PRIOR``), the loop fits the projected tracks exactly with that weight, as it
 fits noise-free tracks. Otherwise (the 10-frame faces, where no prior helps) nothing changes.
+Tracks with missing entries are projected once completed (the observed values and the
+completion's at the hidden entries, :mod:`moju_core.missing`); their smoothness trials fitted
+the observed entries only, so the exact fit's rule runs its own trials on the projection.
 Where the soft rule chooses more (face3, the paper: 100-1000) the soft loop denoises well
 through its own low-rank model, and the projection cost up to 25 % at 3 % noise.
 Estimated cameras keep the soft fit: an exact fit trusts the cameras, and the estimates of
