@@ -44,9 +44,9 @@ SOLVE = r"""
 import json, sys
 from threadpoolctl import threadpool_limits
 from moju_core import SolverParams, reconstruct
-import numpy as np
 from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.metrics import evaluate
+from moju_core.validation import with_missing
 name, seed, n_points, source = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 noise, hide = float(sys.argv[5]), json.loads(sys.argv[6])
 data = make_sequence(name, n_points=n_points, seed=seed, noise=noise)
@@ -55,7 +55,7 @@ params = SolverParams(seed=seed, **({"rotations": "known"} if known else {}))
 W, visibility = data.W, None
 if hide is not None:
     visibility = occlusion_mask(data, **hide, seed=seed)
-    W = np.where(np.repeat(visibility, 2, axis=0), data.W, np.nan)
+    W = with_missing(data.W, visibility)
 with threadpool_limits(limits=1):
     result = reconstruct(W, params, rotations=data.rotations if known else None,
                          visibility=visibility)

@@ -179,9 +179,8 @@ def _reconstruct(
         # The noise from the fully observed blocks, relative to the completed tracks' mean
         # square; a completion less precise than a measurement of noisy tracks is not data.
         block_noise = missing.observed_noise_variance(W, observed)
-        model_scale = normalise(model.fill(W, observed))[1]
         noisy = block_noise is not None and (
-            block_noise / model_scale**2 > defaults.EXACT_DATA_NOISE
+            block_noise / normalise(model.fill(W, observed))[1] ** 2 > defaults.EXACT_DATA_NOISE
         )
         reliable = missing.trusted_entries(model, observed, noisy=noisy)
         values, borrowed_points = neighbours.borrow_values(model, W, observed, reliable)

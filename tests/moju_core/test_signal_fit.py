@@ -8,6 +8,7 @@ import pytest
 from moju_core import SolverParams, admm, reconstruct
 from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.metrics import e3d
+from moju_core.validation import with_missing
 
 
 @pytest.fixture(scope="module")
@@ -96,9 +97,7 @@ def test_complete_tracks_take_the_exact_weight_from_the_smoothness_trials(
 def occluded_noisy_sheet():
     data = make_sequence("bumps-osc", n_points=1_000, noise=0.02, seed=0)
     visibility = occlusion_mask(data, band=0.2, lost=0.1, dropout=0.02, seed=0)
-    W = data.W.copy()
-    W[np.repeat(~visibility, 2, axis=0)] = np.nan
-    return data, W, visibility
+    return data, with_missing(data.W, visibility), visibility
 
 
 def test_noisy_tracks_with_missing_entries_take_it_on_their_completion(
