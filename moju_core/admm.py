@@ -113,6 +113,7 @@ def run(
     refine_rotations: bool = False,
     observed: np.ndarray | None = None,
     exact_data: bool = False,
+    measured: np.ndarray | None = None,
 ) -> LoopOutput:
     """Run Algorithm 1 on scale-normalised, centred tracks with given rotations.
 
@@ -140,10 +141,13 @@ def run(
         Where the points are observed; the data term runs over these entries only (the
         tracks' values elsewhere are not used). None: all observed.
     exact_data : bool, default False
-        With the temporal prior on, complete tracks and fixed cameras (``refine_rotations``
-        false), fit the tracks exactly and let the
-        prior set the depths only (:func:`moju_core.temporal_prior.depth_step`): for tracks
-        without measurable noise.
+        With the temporal prior on and fixed cameras (``refine_rotations`` false), fit the
+        tracks exactly and let the prior set the depths only
+        (:func:`moju_core.temporal_prior.depth_step`): for tracks without measurable noise.
+    measured : ndarray of shape (F, P), bool, optional
+        With ``exact_data`` and hidden entries: the entries fitted exactly (the observed
+        ones); the other entries of ``observed`` are fitted softly
+        (:func:`moju_core.temporal_prior.masked_depth_step`).
 
     Returns
     -------
@@ -155,7 +159,7 @@ def run(
     )
     # S = S# = pinv(R) W, the zero-depth start: from the tracks as given, i.e. with the
     # hidden entries of a masked input at their completion (moju_core.missing).
-    state = initial_state(tracks, rotations, params.rho, observed)
+    state = initial_state(tracks, rotations, params.rho, observed, measured)
     if settings.local:
         initial_groups(state, settings, features)
     group_lrr = GroupCoefficients.initial(state.n_groups, n_frames, params.low_dim, params.seed)
@@ -266,12 +270,27 @@ def shape_update(state: LoopState, settings: LoopSettings) -> None:
     over the observed entries only; or, with the exact temporal prior, a banded solve over
     the frames (:func:`moju_core.temporal_prior.smooth_data_step`), which needs every entry: the
     unobserved ones then take the current shapes' projection (a majoriser of the masked data
-    term, :func:`moju_core.cameras.projection.fill_unobserved`). In place on ``state.shapes``.
+    term, :func:`moju_core.cameras.projection.fill_unobserved`). Tracks without noise are
+    fitted exactly: the depth step (:func:`moju_core.temporal_prior.depth_step`), with hidden
+    entries placed in the image first (:func:`~moju_core.temporal_prior.masked_depth_step`).
+    In place on ``state.shapes``.
     """
     n_frames, n_points = state.n_frames, state.n_points
     np.add(state.sharp, state.scaled, out=state.work)
     target = state.work.reshape(n_frames, 3, n_points)
-    if settings.exact_data:
+    if settings.exact_data and state.measured is not None:
+        hidden = ~state.measured
+        temporal_prior.masked_depth_step(
+            state.back_projected,
+            state.measured,
+            hidden if state.observed is None else hidden & state.observed,
+            state.normals,
+            target,
+            state.rho,
+            settings.prior,
+            state.shapes,
+        )
+    elif settings.exact_data:
         if state.depth_pull is None:
             state.depth_pull = temporal_prior.depth_pull(
                 state.back_projected, state.normals, settings.prior

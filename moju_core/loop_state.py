@@ -105,6 +105,9 @@ class LoopState:
     depth_pull : ndarray of shape (F, P) or None
         The exact fit's constant term (:func:`moju_core.temporal_prior.depth_pull`), kept once
         computed.
+    measured : ndarray of shape (F, P), bool, or None
+        With an exact fit of tracks with hidden entries, the observed entries (fitted exactly;
+        the other entries of ``observed`` softly); None otherwise.
     """
 
     rotations: np.ndarray
@@ -128,6 +131,7 @@ class LoopState:
     label_changes: int = 0
     svt_warm: lrr.WarmStart = field(default_factory=lrr.WarmStart)
     depth_pull: np.ndarray | None = None
+    measured: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -167,6 +171,8 @@ class LoopState:
         self.tracks = permute_points(self.tracks, perm)
         if self.observed is not None:
             self.observed = permute_points(self.observed, perm)
+        if self.measured is not None:
+            self.measured = permute_points(self.measured, perm)
         if self.features is not None:
             self.features = self.features[perm]
         self.shapes = permute_points(self.shapes, perm)
@@ -194,6 +200,7 @@ def initial_state(
     rotations: np.ndarray,
     rho: float,
     observed: np.ndarray | None,
+    measured: np.ndarray | None = None,
 ) -> LoopState:
     """The loop's start: ``S = S# = pinv(R) W`` (zero depth), zero multiplier, one group.
 
@@ -206,6 +213,9 @@ def initial_state(
     rho : float
         Initial penalty parameter.
     observed : ndarray of shape (F, P), bool, or None
+        The entries the data term fits.
+    measured : ndarray of shape (F, P), bool, optional
+        :attr:`LoopState.measured`.
 
     Returns
     -------
@@ -224,6 +234,7 @@ def initial_state(
         rotations=rotations,
         tracks=tracks,
         observed=observed,
+        measured=measured,
         back_projected=camera.back_project(rotations, tracks),
         normals=camera.viewing_directions(rotations),
         shapes=start,
@@ -339,20 +350,17 @@ class LoopSettings:
         return self.kept_values if iteration <= UNSHRINK_AFTER else self.unshrunk_values
 
 
-def fits_exactly(
-    exact_data: bool, observed: np.ndarray | None, refine_rotations: bool, smoothness: float
-) -> bool:
+def fits_exactly(exact_data: bool, refine_rotations: bool, smoothness: float) -> bool:
     """Whether a loop fits the tracks exactly (:func:`moju_core.temporal_prior.depth_step`).
 
-    Only noise-free tracks (``exact_data``), complete (``observed`` None) and seen by fixed
-    cameras, with a prior strong enough to set the depths (``smoothness >=``
-    :data:`~moju_core.defaults.MIN_DEPTH_PRIOR`). Refined cameras are corrected through the data
-    term's misfit, which an exact fit removes (paper, windowed cameras 20 degrees off: e3D
-    0.009 soft, 0.103 exact).
+    Only noise-free tracks (``exact_data``) seen by fixed cameras, with a prior strong enough
+    to set the depths (``smoothness >=`` :data:`~moju_core.defaults.MIN_DEPTH_PRIOR`). With
+    hidden entries the observed ones are fitted exactly and the others softly
+    (:func:`moju_core.temporal_prior.masked_depth_step`). Refined cameras are corrected
+    through the data term's misfit, which an exact fit removes (paper, windowed cameras 20
+    degrees off: e3D 0.009 soft, 0.103 exact).
     """
-    return (
-        exact_data and observed is None and not refine_rotations and smoothness >= MIN_DEPTH_PRIOR
-    )
+    return exact_data and not refine_rotations and smoothness >= MIN_DEPTH_PRIOR
 
 
 def loop_settings(
@@ -377,11 +385,10 @@ def loop_settings(
     refine_rotations : bool
         Whether the loop re-fits the rotations to the shapes.
     exact_data : bool, default False
-        Fit the tracks exactly when the temporal prior is on (complete tracks and fixed
-        cameras only).
+        Fit the tracks exactly when the temporal prior is on (fixed cameras only).
     """
     local = params.method != "bmm" and params.n_groups > 1
-    exact = fits_exactly(exact_data, observed, refine_rotations, params.smoothness)
+    exact = fits_exactly(exact_data, refine_rotations, params.smoothness)
     adaptive = local and params.grouping == "adaptive"
     prior = (
         temporal_prior.temporal_prior(n_frames, params.smoothness) if params.smoothness else None

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from moju_core import SolverParams, missing, pta, reconstruct
+from moju_core import SolverParams, defaults, missing, pta, reconstruct
 from moju_core.cameras import projection
 from moju_core.cameras.refinement import project_to_stiefel
 from moju_core.datasets import make_sequence, occlusion_mask
@@ -278,8 +278,6 @@ def test_the_translation_refit_keeps_the_back_projection_of_the_tracks():
     tracks = rng.standard_normal((6, 2, 20))
     observed = rng.random((6, 20)) > 0.3
     params = SolverParams(seed=0, rotations="known", smoothness=0.0)
-    from moju_core import defaults
-
     params = defaults.resolve(params, 6, 20, 1.0, rotations=rotations)
     state = initial_state(tracks, rotations, 1.0, observed)
     state.shapes += rng.standard_normal(state.shapes.shape)
@@ -375,3 +373,15 @@ def test_noise_free_tracks_with_missing_data_are_read_as_noise_free_and_keep_the
     complete = reconstruct(data.W, params)
     assert result.diagnostics.noise_variance < 1e-10
     assert result.diagnostics.rotation_source == complete.diagnostics.rotation_source
+
+
+def test_noise_free_tracks_with_hidden_entries_are_fitted_exactly_where_observed():
+    """The observed entries exactly, the hidden ones softly at their completion
+    (temporal_prior.masked_depth_step). With the soft data term everywhere e3D was 0.0178
+    here, against 0.0121 with this fit and 0.0062 on the complete tracks."""
+    data = make_sequence("face3", n_points=1000, seed=1)
+    visibility = occlusion_mask(data, band=0.2, lost=0.1, dropout=0.02, seed=1)
+    params = SolverParams(rotations="known", seed=1)
+    result = reconstruct(_with_nan(data.W, visibility), params, rotations=data.rotations)
+    assert result.params.smoothness >= defaults.MIN_DEPTH_PRIOR
+    assert e3d(result.shapes, data.shapes) < 0.014

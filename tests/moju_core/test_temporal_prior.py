@@ -171,25 +171,81 @@ def test_depth_step_fits_the_tracks_and_is_optimal_over_the_depths(n_frames, wei
 
 
 @pytest.mark.parametrize(
-    ("noise", "masked", "exact"), [(0.0, False, True), (0.01, False, False), (0.0, True, False)]
+    ("noise", "masked", "steps"),
+    [
+        (0.0, False, {"depth"}),
+        (0.01, False, set()),
+        (0.0, True, {"masked", "depth"}),  # the masked step ends with the depth step
+        (0.01, True, set()),
+    ],
 )
-def test_the_loop_fits_exactly_only_complete_tracks_without_noise(
-    monkeypatch, noise, masked, exact
-):
-    calls = {"depth": 0}
-    real_step = temporal_prior.depth_step
+def test_the_loop_fits_exactly_only_tracks_without_noise(monkeypatch, noise, masked, steps):
+    calls = {"depth": 0, "masked": 0}
 
-    def counted(*args, **kwargs):
-        calls["depth"] += 1
-        return real_step(*args, **kwargs)
+    def counted(name):
+        real = getattr(temporal_prior, f"{name}_step" if name == "depth" else "masked_depth_step")
 
-    monkeypatch.setattr(temporal_prior, "depth_step", counted)
+        def wrapper(*args, **kwargs):
+            calls[name] += 1
+            return real(*args, **kwargs)
+
+        return wrapper
+
+    monkeypatch.setattr(temporal_prior, "depth_step", counted("depth"))
+    monkeypatch.setattr(temporal_prior, "masked_depth_step", counted("masked"))
     data = make_sequence("paper", n_points=300, noise=noise)
     W = data.W.copy()
     if masked:
         W[4:, :5] = np.nan  # five points seen in 2 frames: their completions are not trusted
     reconstruct(W, SolverParams(smoothness=10.0, max_iter=5), rotations=data.rotations)
-    assert (calls["depth"] > 0) is exact
+    assert {name for name, count in calls.items() if count} == steps
+
+
+@pytest.mark.parametrize(("n_frames", "weight", "rho"), [(12, 7.0, 0.5), (9, 100.0, 1e-2)])
+def test_masked_depth_step_fits_the_measured_entries_and_places_the_hidden_ones(
+    n_frames, weight, rho
+):
+    rotations, tracks, target = _step_inputs(n_frames, 6, seed=n_frames)
+    rng = np.random.default_rng(n_frames)
+    hidden = rng.random((n_frames, 6)) < 0.35
+    anchored = hidden & (rng.random((n_frames, 6)) < 0.5)
+    normals = projection.viewing_directions(rotations)
+    prior = temporal_prior.temporal_prior(n_frames, weight)
+    back_projected = projection.back_project(rotations, tracks)
+    shapes = np.empty_like(target)
+    temporal_prior.masked_depth_step(
+        back_projected, ~hidden, anchored, normals, target, rho, prior, shapes
+    )
+    image = projection.project(rotations, shapes)
+    seen = np.broadcast_to(~hidden[:, None, :], tracks.shape)
+    assert_allclose(image[seen], tracks[seen], atol=1e-12)
+    # Hidden entries: the filtered target's image position, pulled to the track if anchored.
+    difference = temporal_prior.second_differences(n_frames)
+    smoothing = np.linalg.inv(np.eye(n_frames) + (weight / rho) * difference.T @ difference)
+    filtered = projection.project(rotations, np.einsum("fg,gcp->fcp", smoothing, target))
+    pull = anchored[:, None, :].astype(float)
+    expected = (rho * filtered + pull * tracks) / (rho + pull)
+    unseen = np.broadcast_to(hidden[:, None, :], tracks.shape)
+    assert_allclose(image[unseen], expected[unseen], atol=1e-10)
+    # The depths are optimal for those image positions (the depth step's condition).
+    flat = shapes.reshape(n_frames, -1)
+    gradient = (weight * (difference.T @ (difference @ flat))).reshape(shapes.shape)
+    gradient += rho * (shapes - target)
+    assert_allclose(np.einsum("fc,fcp->fp", normals, gradient), 0.0, atol=1e-9)
+
+
+def test_masked_depth_step_without_hidden_entries_is_the_depth_step():
+    rotations, tracks, target = _step_inputs(11, 5, seed=3)
+    normals = projection.viewing_directions(rotations)
+    prior = temporal_prior.temporal_prior(11, 30.0)
+    back_projected = projection.back_project(rotations, tracks)
+    expected, shapes = np.empty_like(target), np.empty_like(target)
+    temporal_prior.depth_step(back_projected, normals, target, 0.4, prior, expected)
+    every = np.ones((11, 5), dtype=bool)
+    temporal_prior.masked_depth_step(
+        back_projected, every, ~every, normals, target, 0.4, prior, shapes
+    )
+    assert_allclose(shapes, expected, rtol=0, atol=0)
 
 
 def test_the_depth_step_with_its_kept_pull_is_the_same_step():
