@@ -289,10 +289,12 @@ def _reconstruct(
                 params = params.model_copy(update={"unshrunk_values": unshrunk})
         signal_fitted = fit is not None
     measured = None
-    if observed is not None and params.rotations == "known" and not signal_fitted:
+    if (fitted is not None or borrowed) and not signal_fitted:
         if fits_exactly(exact_data, estimate.refine, params.smoothness or 0.0):
-            # The observed entries exactly, the trusted and borrowed hidden ones softly at
-            # their completion (temporal_prior.masked_depth_step).
+            # Known cameras (exact_data above): the observed entries exactly, the trusted and
+            # borrowed hidden ones softly at their completion, the others free
+            # (temporal_prior.masked_depth_step). Where every hidden entry is trusted and
+            # none borrowed, all are fitted exactly as data.
             measured = observed
     if derive_unshrunk:
         unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness)

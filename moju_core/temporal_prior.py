@@ -389,12 +389,18 @@ def masked_depth_step(
         ``out``.
     """
     n_frames, _, n_points = target.shape
-    smoothed = smoothing_filter(prior, rho)(target.reshape(n_frames, 3 * n_points))
-    plane = smoothed.reshape(n_frames, 3, n_points)
-    plane -= normals[:, :, None] * np.einsum("fc,fcp->fp", normals, plane)[:, None, :]
+    # The filter G_rho = (I + gamma/rho D^T D)^-1 on the 3P coordinates, by the row sweep.
+    bands = (prior.weight / rho) * prior.bands
+    bands[2] += 1.0
+    factor = cholesky_banded(bands, check_finite=False)
+    plane = solve_factored_bands(factor, target.reshape(n_frames, 3 * n_points).copy())
+    plane = plane.reshape(n_frames, 3, n_points)
+    along = normals[:, None, :] @ plane  # (F, 1, P): the filtered target's depth
+    plane -= normals[:, :, None] * along
     pull = anchored[:, None, :].astype(np.float64)
     plane *= rho
     plane += pull * back_projected
     plane /= rho + pull
-    start = np.where(measured[:, None, :], back_projected, plane)
+    np.copyto(plane, back_projected, where=measured[:, None, :])
+    start = plane
     return depth_step(start, normals, target, rho, prior, out)
