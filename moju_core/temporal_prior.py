@@ -36,12 +36,13 @@ off-diagonals: ``R_f^T R_f = I - n_f n_f^T`` couples the three coordinates of a 
 factorisation (O(F)) and a banded solve for the P columns (O(F P)) replace the dense system
 (:func:`smooth_data_step`).
 
-**Tracks without measurable noise: the depth step.** With fixed cameras and complete tracks
-whose noise is negligible (:data:`moju_core.defaults.EXACT_DATA_NOISE`), the S-update fits them
+**Tracks without measurable noise: the depth step.** With fixed cameras and tracks whose
+noise is negligible (:data:`moju_core.defaults.EXACT_DATA_NOISE`), the S-update fits them
 exactly: ``S_f = R_f^T W_f + n_f d_f^T`` and the prior chooses only the depths d, by one
 pentadiagonal F x F system for all P points (:func:`depth_step`). It never pulls against the
 motion the camera sees in the image plane, so a weight that is strong for the depth costs
-nothing in the fit.
+nothing in the fit. With hidden entries the observed ones are fitted exactly and the hidden
+ones placed in the image first (:func:`masked_depth_step`).
 """
 
 from __future__ import annotations

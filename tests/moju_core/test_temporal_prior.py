@@ -171,15 +171,16 @@ def test_depth_step_fits_the_tracks_and_is_optimal_over_the_depths(n_frames, wei
 
 
 @pytest.mark.parametrize(
-    ("noise", "masked", "steps"),
+    ("noise", "masked", "known", "steps"),
     [
-        (0.0, False, {"depth"}),
-        (0.01, False, set()),
-        (0.0, True, {"masked", "depth"}),  # the masked step ends with the depth step
-        (0.01, True, set()),
+        (0.0, False, True, {"depth"}),
+        (0.01, False, True, set()),
+        (0.0, True, True, {"masked", "depth"}),  # the masked step ends with the depth step
+        (0.01, True, True, set()),
+        (0.0, True, False, set()),  # estimated cameras: untrusted entries keep it soft
     ],
 )
-def test_the_loop_fits_exactly_only_tracks_without_noise(monkeypatch, noise, masked, steps):
+def test_the_loop_fits_exactly_only_tracks_without_noise(monkeypatch, noise, masked, known, steps):
     calls = {"depth": 0, "masked": 0}
 
     def counted(name):
@@ -197,7 +198,9 @@ def test_the_loop_fits_exactly_only_tracks_without_noise(monkeypatch, noise, mas
     W = data.W.copy()
     if masked:
         W[4:, :5] = np.nan  # five points seen in 2 frames: their completions are not trusted
-    reconstruct(W, SolverParams(smoothness=10.0, max_iter=5), rotations=data.rotations)
+    reconstruct(
+        W, SolverParams(smoothness=10.0, max_iter=5), rotations=data.rotations if known else None
+    )
     assert {name for name, count in calls.items() if count} == steps
 
 
