@@ -390,10 +390,9 @@ def masked_depth_step(
         ``out``.
     """
     n_frames, _, n_points = target.shape
-    # The filter G_rho = (I + gamma/rho D^T D)^-1 on the 3P coordinates, by the row sweep.
-    bands = (prior.weight / rho) * prior.bands
-    bands[2] += 1.0
-    factor = cholesky_banded(bands, check_finite=False)
+    # The filter G_rho on the 3P coordinates, by the row sweep (faster than LAPACK's per
+    # column solve of FrameFilter.__call__ at this many columns).
+    factor = cholesky_banded(smoothing_filter(prior, rho).bands, check_finite=False)
     plane = solve_factored_bands(factor, target.reshape(n_frames, 3 * n_points).copy())
     plane = plane.reshape(n_frames, 3, n_points)
     along = normals[:, None, :] @ plane  # (F, 1, P): the filtered target's depth
@@ -403,5 +402,4 @@ def masked_depth_step(
     plane += pull * back_projected
     plane /= rho + pull
     np.copyto(plane, back_projected, where=measured[:, None, :])
-    start = plane
-    return depth_step(start, normals, target, rho, prior, out)
+    return depth_step(plane, normals, target, rho, prior, out)

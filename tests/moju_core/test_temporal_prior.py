@@ -181,19 +181,20 @@ def test_depth_step_fits_the_tracks_and_is_optimal_over_the_depths(n_frames, wei
     ],
 )
 def test_the_loop_fits_exactly_only_tracks_without_noise(monkeypatch, noise, masked, known, steps):
-    calls = {"depth": 0, "masked": 0}
+    steps_by_name = {"depth": "depth_step", "masked": "masked_depth_step"}
+    calls = dict.fromkeys(steps_by_name, 0)
 
-    def counted(name):
-        real = getattr(temporal_prior, f"{name}_step" if name == "depth" else "masked_depth_step")
-
+    def counted(name, real):
         def wrapper(*args, **kwargs):
             calls[name] += 1
             return real(*args, **kwargs)
 
         return wrapper
 
-    monkeypatch.setattr(temporal_prior, "depth_step", counted("depth"))
-    monkeypatch.setattr(temporal_prior, "masked_depth_step", counted("masked"))
+    for name, attribute in steps_by_name.items():
+        monkeypatch.setattr(
+            temporal_prior, attribute, counted(name, getattr(temporal_prior, attribute))
+        )
     data = make_sequence("paper", n_points=300, noise=noise)
     W = data.W.copy()
     if masked:
