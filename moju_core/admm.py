@@ -280,6 +280,11 @@ def shape_update(state: LoopState, settings: LoopSettings) -> None:
     target = state.work.reshape(n_frames, 3, n_points)
     if settings.exact_data and state.measured is not None:
         hidden = ~state.measured
+        if state.observed is None and state.depth_pull is None:
+            # Kept while the tracks stay (with a mask, reprojection_error moves them).
+            state.depth_pull = temporal_prior.depth_pull(
+                state.back_projected, state.normals, settings.prior
+            )
         temporal_prior.masked_depth_step(
             state.back_projected,
             state.measured,
@@ -289,6 +294,7 @@ def shape_update(state: LoopState, settings: LoopSettings) -> None:
             state.rho,
             settings.prior,
             state.shapes,
+            pull=state.depth_pull if state.observed is None else None,
         )
     elif settings.exact_data:
         if state.depth_pull is None:

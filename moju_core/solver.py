@@ -170,7 +170,7 @@ def _reconstruct(
         rotations = check_rotations(rotations, n_frames)
     # Sizes first, with the messages the service gives at submission (moju_core.feasibility).
     feasibility.check_fit(params, n_frames, n_points, has_rotations=rotations is not None)
-    values, fitted, borrowed = None, observed, False
+    values, fitted, borrowed, exact_entries = None, observed, False, observed
     if observed is not None:
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
         # completion of W (moju_core.missing), with the entries it does not determine filled
@@ -193,6 +193,8 @@ def _reconstruct(
         # 10 % dropout: 0.004 of the RMS) would count as misfit (it chose 0.1 instead of 100).
         fitted = reliable | borrowed_points[None, :]
         fitted = None if fitted.all() else fitted
+        # An exact model predicts its trusted entries as exactly as they would be measured.
+        exact_entries = reliable if model.exact else observed
     centred, scale = normalise(W)
 
     report("rotations")
@@ -208,12 +210,13 @@ def _reconstruct(
         noise = noise if block_noise is None else block_noise / scale**2
     exact_data = noise <= defaults.EXACT_DATA_NOISE
     if observed is not None and params.rotations != "known":
-        # Hidden entries are fitted exactly only where every one is trusted and none borrowed
-        # (then as data): an exact fit trusts the cameras, and those estimated from a
-        # completion are 1-2 degrees off; with the observed entries fitted exactly and the
-        # hidden ones softly, face3 (combined occlusion, seeds 2 / 3) went from 0.0215 /
-        # 0.0170 to 0.109 / diverged (docs/solver.md, "Missing data").
-        exact_data = exact_data and fitted is None and not borrowed
+        # An exact fit trusts the cameras. Those estimated from an exact model are as good as
+        # from complete tracks; from another completion they are 1-2 degrees off, and the
+        # hidden entries are then fitted exactly only where every one is trusted and none
+        # borrowed (then as data): with the observed entries fitted exactly and the hidden
+        # ones softly, face3 (combined occlusion, seeds 2 / 3) went from 0.0215 / 0.0170 to
+        # 0.109 / diverged (docs/solver.md, "Missing data").
+        exact_data = exact_data and (model.exact or (fitted is None and not borrowed))
     if params.rotations == "known":
         estimate = cameras.CameraEstimate(rotations, "known")
     else:
@@ -258,15 +261,17 @@ def _reconstruct(
             report("initialising")  # raises Cancelled when the callback asks to stop
             return False
 
+        trial_tracks, trial_observed = _trial_tracks(tracks, observed, exact_entries)
         choice = choose_smoothness(
-            tracks,
+            trial_tracks,
             rotations,
             params,
             signal_basis,
             refine_rotations=estimate.refine,
             hook=trial_hook,
-            observed=observed,
+            observed=trial_observed,
         )
+        del trial_tracks
         exact = fits_exactly(exact_data, estimate.refine, defaults.MIN_DEPTH_PRIOR)
         smoothness_trials = choice.trials
         weight = choice.exact_weight if exact else choice.weight
@@ -291,11 +296,12 @@ def _reconstruct(
     measured = None
     if (fitted is not None or borrowed) and not signal_fitted:
         if fits_exactly(exact_data, estimate.refine, params.smoothness or 0.0):
-            # Known cameras (exact_data above): the observed entries exactly, the trusted and
-            # borrowed hidden ones softly at their completion, the others free
+            # Known cameras or an exact model (exact_data above): the observed entries
+            # exactly (and the trusted ones of an exact model), the other trusted and the
+            # borrowed hidden ones softly at their completion, the rest free
             # (temporal_prior.masked_depth_step). Where every hidden entry is trusted and
             # none borrowed, all are fitted exactly as data.
-            measured = observed
+            measured = exact_entries
     if derive_unshrunk:
         unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness)
         params = params.model_copy(update={"unshrunk_values": unshrunk})
@@ -434,6 +440,25 @@ def _camera_tracks(
         tracks = values[:, columns]
         tracks = (tracks - tracks.mean(axis=1, keepdims=True)) / scale
     return tracks, spectrum(tracks)
+
+
+def _trial_tracks(
+    tracks: np.ndarray, observed: np.ndarray | None, exact_entries: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The tracks (F, 2, n) and visibility the smoothness trials fit.
+
+    With missing data, the observed entries only (:func:`moju_core.smoothness.choose_smoothness`),
+    unless an exact model predicts the hidden ones (``exact_entries`` is not ``observed``):
+    then the points all of whose entries it predicts or observes, complete, as on complete
+    tracks (at :data:`CAMERA_MIN_POINTS` or more; the trials' masked loop cost 1.3 times the
+    unmasked one on face3).
+    """
+    if observed is None or exact_entries is observed:
+        return tracks, observed
+    points = exact_entries.all(axis=0)
+    if points.sum() < CAMERA_MIN_POINTS:
+        return tracks, exact_entries
+    return np.ascontiguousarray(tracks[:, :, points]), None
 
 
 def _resolve_rotation_method(params: SolverParams, given: bool) -> SolverParams:

@@ -352,6 +352,7 @@ def masked_depth_step(
     rho: float,
     prior: TemporalPrior,
     out: np.ndarray,
+    pull: np.ndarray | None = None,
 ) -> np.ndarray:
     """The depth step of tracks with hidden entries: measured entries fitted exactly.
 
@@ -364,7 +365,8 @@ def masked_depth_step(
        proximal operator ``G_rho`` (:class:`FrameFilter`), pulled towards the completion;
     2. :func:`depth_step` on all entries, the measured ones at their tracks.
 
-    Step 1 is one pentadiagonal solve with 3P right-hand sides, step 2 one with P: O(F P).
+    Step 1 is one pentadiagonal solve with 3n right-hand sides for the n points with a hidden
+    entry that is not measured, step 2 one with P: O(F P).
     The exact minimiser couples every point's hidden entries through the prior, a different
     3F x 3F system for each point; solved by conjugate gradients it gave the same e3D on the
     paper, face3 and bumps-osc (combined occlusion, known cameras) at 10-20 times the cost of
@@ -383,23 +385,39 @@ def masked_depth_step(
     prior : TemporalPrior
     out : ndarray of shape (F, 3, P), C-contiguous
         Where the solution is written (must not share memory with the inputs).
+    pull : ndarray of shape (F, P), optional
+        :func:`depth_pull` of ``back_projected``, if the caller keeps it.
 
     Returns
     -------
     ndarray of shape (F, 3, P)
         ``out``.
     """
-    n_frames, _, n_points = target.shape
-    # The filter G_rho on the 3P coordinates, by the row sweep (faster than LAPACK's per
+    if pull is None:
+        pull = depth_pull(back_projected, normals, prior)
+    # Only the points with an entry that is not measured move off their tracks.
+    points = np.flatnonzero(~measured.all(axis=0))
+    if points.size == 0:
+        return depth_step(back_projected, normals, target, rho, prior, out, pull)
+    n_frames = target.shape[0]
+    # The filter G_rho on their 3n coordinates, by the row sweep (faster than LAPACK's per
     # column solve of FrameFilter.__call__ at this many columns).
     factor = cholesky_banded(smoothing_filter(prior, rho).bands, check_finite=False)
-    plane = solve_factored_bands(factor, target.reshape(n_frames, 3 * n_points).copy())
-    plane = plane.reshape(n_frames, 3, n_points)
-    along = normals[:, None, :] @ plane  # (F, 1, P): the filtered target's depth
-    plane -= normals[:, :, None] * along
-    pull = anchored[:, None, :].astype(np.float64)
-    plane *= rho
-    plane += pull * back_projected
-    plane /= rho + pull
-    np.copyto(plane, back_projected, where=measured[:, None, :])
-    return depth_step(plane, normals, target, rho, prior, out)
+    moved = target[:, :, points].reshape(n_frames, 3 * points.size)
+    moved = solve_factored_bands(factor, moved).reshape(n_frames, 3, points.size)
+    along = normals[:, None, :] @ moved  # (F, 1, n): the filtered target's depth
+    moved -= normals[:, :, None] * along
+    anchor = anchored[:, None, points].astype(np.float64)
+    seen = back_projected[:, :, points]
+    moved *= rho
+    moved += anchor * seen
+    moved /= rho + anchor
+    np.copyto(moved, seen, where=measured[:, None, points])
+    # The depth step is linear in the fixed part: its pull and its shapes change by the
+    # moved points' offset only (column by column).
+    moved -= seen
+    pull = pull.copy()
+    pull[:, points] += depth_pull(moved, normals, prior)
+    depth_step(back_projected, normals, target, rho, prior, out, pull)
+    out[:, :, points] += moved
+    return out

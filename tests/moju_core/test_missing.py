@@ -385,3 +385,62 @@ def test_noise_free_tracks_with_hidden_entries_are_fitted_exactly_where_observed
     result = reconstruct(_with_nan(data.W, visibility), params, rotations=data.rotations)
     assert result.params.smoothness >= defaults.MIN_DEPTH_PRIOR
     assert e3d(result.shapes, data.shapes) < 0.014
+
+
+def _band_visibility(n_frames=60, n_points=400, seed=0):
+    face = make_sequence("face3", n_points=n_points, n_frames=n_frames, seed=seed)
+    return occlusion_mask(face, band=0.2, lost=0.1, dropout=0.02, seed=seed)
+
+
+def test_an_exactly_low_rank_w_gets_an_exact_model_at_its_rank():
+    rng = np.random.default_rng(11)
+    visibility = _band_visibility()
+    W = _low_rank_w(rng, n_rows=120, n_points=400, rank=5)
+    garbage = np.where(np.repeat(visibility, 2, axis=0), W, 1e3)
+    model = missing.complete(garbage, visibility)
+    assert model.exact and model.rank == 5
+    trusted = np.repeat(missing.trusted_entries(model, visibility) & ~visibility, 2, axis=0)
+    assert trusted.mean() > 0.1
+    assert np.abs(model.values() - W)[trusted].max() < 1e-6 * np.abs(W).max()
+    assert_allclose(model.centroid(), W.mean(axis=1), atol=1e-6 * np.abs(W).max())
+    # The rank chosen by held-out error, fitted by EM and ALS: far less exact.
+    fitted = missing.complete_at_rank(garbage, visibility, missing.choose_rank(W, visibility))
+    assert (
+        np.abs(fitted.values() - W)[trusted].max() > 1e3 * np.abs(model.values() - W)[trusted].max()
+    )
+
+
+@pytest.mark.parametrize("sigma", [1e-3, 1e-2])
+def test_noisy_tracks_get_no_exact_model_and_the_rank_chosen_by_held_out_error(sigma):
+    rng = np.random.default_rng(12)
+    visibility = _band_visibility()
+    W = _low_rank_w(rng, n_rows=120, n_points=400, rank=5) + sigma * rng.standard_normal((120, 400))
+    assert missing.exact_model(W, visibility) is None
+    model = missing.complete(W, visibility)
+    assert not model.exact and model.rank == missing.choose_rank(W, visibility)
+
+
+def test_an_exact_model_is_refused_when_alternating_least_squares_stalls(monkeypatch):
+    # Candidates short of W's rank (6, forced to 4 here) cannot fit it exactly.
+    rng = np.random.default_rng(13)
+    visibility = _band_visibility()
+    W = _low_rank_w(rng, n_rows=120, n_points=400, rank=5)
+    assert missing.exact_model(W, visibility) is not None
+    from moju_core import window_subspace
+
+    spaces = window_subspace.column_spaces
+    monkeypatch.setattr(
+        window_subspace,
+        "column_spaces",
+        lambda *args: ((basis[:, :4], 4) for basis, _ in spaces(*args)),
+    )
+    assert missing.exact_model(W, visibility) is None
+
+
+def test_an_exact_model_is_refused_when_its_test_points_are_not_predicted(monkeypatch):
+    rng = np.random.default_rng(14)
+    visibility = _band_visibility()
+    W = _low_rank_w(rng, n_rows=120, n_points=400, rank=5)
+    assert missing.exact_model(W, visibility) is not None
+    monkeypatch.setattr(missing, "EXACT_MODEL_ERROR", 0.0)  # no prediction is that good
+    assert missing.exact_model(W, visibility) is None
