@@ -87,6 +87,9 @@ EXACT_TEST_FRACTION = 0.1
 #: sweeps, which tracks that are not exactly of low rank pay for nothing.
 EXACT_POINTS = 500
 EXACT_CANDIDATES = 2
+#: Fewer well-seen points than this many test points' worth (sparse markers: 41 on face4) do
+#: not test a model: :func:`exact_model` does not try.
+EXACT_MIN_TEST_POINTS = 10
 EXACT_MODEL_ERROR = 1e-10
 #: Hidden entries whose leverage (:meth:`LowRank.leverage`) is at most this are predicted well
 #: enough by the model to be used as data (:func:`trusted_entries`). Chosen on seeds 0-1 of
@@ -341,8 +344,9 @@ def exact_model(W: np.ndarray, visibility: np.ndarray) -> LowRank | None:
     """The model of an exactly low-rank W (noise-free tracks of a few-basis deformation), or None.
 
     1. Of the well-seen points (at most :data:`EXACT_POINTS`, chosen at random), a tenth are
-       set aside to test the model (:data:`EXACT_TEST_FRACTION`); they lose entries as in
-       the rank choice (:func:`hold_out`: runs of frames and single entries).
+       set aside to test the model (:data:`EXACT_TEST_FRACTION`; None if that is fewer than
+       :data:`EXACT_MIN_TEST_POINTS`); they lose entries as in the rank choice
+       (:func:`hold_out`: runs of frames and single entries).
     2. Candidate column spaces of the other points, uncentred, from windows of frames
        (:func:`moju_core.window_subspace.column_spaces`); none if W is not exactly of low
        rank in them.
@@ -371,10 +375,10 @@ def exact_model(W: np.ndarray, visibility: np.ndarray) -> LowRank | None:
     points = np.flatnonzero(well_seen(visibility))
     if points.size > EXACT_POINTS:
         points = np.sort(rng.choice(points, EXACT_POINTS, replace=False))
+    if points.size * EXACT_TEST_FRACTION < EXACT_MIN_TEST_POINTS:
+        return None
     testing = rng.random(points.size) < EXACT_TEST_FRACTION
     fitting, tested = points[~testing], points[testing]
-    if fitting.size < 2 or tested.size == 0:
-        return None
     sample, seen = W[:, tested], visibility[:, tested]
     held = hold_out(seen, rng)
     if not held.any():

@@ -444,3 +444,18 @@ def test_an_exact_model_is_refused_when_its_test_points_are_not_predicted(monkey
     assert missing.exact_model(W, visibility) is not None
     monkeypatch.setattr(missing, "EXACT_MODEL_ERROR", 0.0)  # no prediction is that good
     assert missing.exact_model(W, visibility) is None
+
+
+def test_an_exactly_low_rank_face_with_missing_data_is_solved_as_if_complete():
+    """Estimated cameras: from the exact model the rotations are those of the complete
+    tracks, and the observed and trusted entries are fitted exactly. With the completion at
+    the rank the held-out error chose (6) the cameras were 0.8-1.8 degrees off and the data
+    term soft: e3D 0.0179 on these tracks at 1,000 points, against 0.0083 complete."""
+    data = make_sequence("face3", n_points=1000, seed=1)
+    visibility = occlusion_mask(data, band=0.2, lost=0.1, dropout=0.02, seed=1)
+    params = SolverParams(seed=1)
+    result = reconstruct(_with_nan(data.W, visibility), params)
+    complete = reconstruct(data.W, params)
+    assert rotation_error_deg(result.rotations, data.rotations) < 0.1
+    errors = [e3d(r.shapes, data.shapes) for r in (result, complete)]
+    assert errors[0] < 1.2 * errors[1]
