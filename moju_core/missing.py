@@ -72,6 +72,9 @@ ALS_RIDGE = 1e-5
 #: points, seeds 0-3) reached errors of 1e-6 of the tracks' RMS at the hidden entries after 30
 #: sweeps (1e-2 from the windows alone, 1e-4 after 10).
 EXACT_SWEEPS = 60
+#: Sweeps between the checks of :func:`_alternate` (exact, or stalled: the misfit fell by less
+#: than half since the last check).
+EXACT_CHECK_EVERY = 5
 EXACT_RIDGE = 1e-9
 #: Fraction of the selected points set aside to test :func:`exact_model`, and the largest
 #: mean squared error at their held-out entries, relative to the tracks' mean square, for
@@ -424,9 +427,9 @@ def _alternate(W: np.ndarray, visibility: np.ndarray, left: np.ndarray) -> np.nd
     """``left`` (2F, k) after sweeps of ALS for ``W ~ left @ right`` on the observed entries
     (no separate translation: W is not centred), or None if the fit does not become exact.
 
-    At most :data:`EXACT_SWEEPS` sweeps; every 10 the misfit (relative to the entries' mean
-    square) is checked: below ``1e-3`` of :data:`EXACT_MODEL_ERROR` the fit is exact; if it
-    fell by less than half since the last check, ALS has stalled.
+    At most :data:`EXACT_SWEEPS` sweeps; every :data:`EXACT_CHECK_EVERY` the misfit (relative
+    to the entries' mean square) is checked: below ``1e-3`` of :data:`EXACT_MODEL_ERROR` the
+    fit is exact; if it fell by less than half since the last check, ALS has stalled.
     """
     mask = expand_mask(visibility)
     data, weights = np.where(mask, W, 0.0), mask.astype(np.float64)
@@ -434,7 +437,7 @@ def _alternate(W: np.ndarray, visibility: np.ndarray, left: np.ndarray) -> np.nd
     previous = np.inf
     for sweep in range(1, EXACT_SWEEPS + 1):
         right = _solve_columns(left, data, weights, EXACT_RIDGE)
-        if sweep % 10 == 0:
+        if sweep % EXACT_CHECK_EVERY == 0:
             misfit = float(np.mean((left @ right - data)[mask] ** 2)) / energy
             if misfit <= 1e-3 * EXACT_MODEL_ERROR:
                 return left
