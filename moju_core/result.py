@@ -143,6 +143,12 @@ class Diagnostics:
         Whether the loop fitted noisy tracks exactly after projecting them onto their signal
         subspace (:mod:`moju_core.signal_fit`; with missing data, the completed tracks,
         every entry); ``smoothness_trials`` are then the trials on the projected tracks.
+    completion_rank : int or None
+        With missing data, the rank of the low-rank model of W the hidden entries were
+        completed from (:func:`moju_core.missing.complete`); None when nothing was missing.
+    exact_completion : bool
+        Whether W was found exactly of that rank (:func:`moju_core.missing.exact_model`): the
+        cameras and the fit then treat the trusted hidden entries as measured.
     """
 
     n_groups_used: int
@@ -155,6 +161,8 @@ class Diagnostics:
     smoothness_trials: tuple[tuple[float, float], ...] = ()
     trajectory_basis: TrajectoryBasisFit | None = None
     signal_fit: bool = False
+    completion_rank: int | None = None
+    exact_completion: bool = False
 
     def __post_init__(self) -> None:
         if self.rotation_source not in get_args(RotationSource):

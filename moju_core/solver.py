@@ -171,11 +171,13 @@ def _reconstruct(
     # Sizes first, with the messages the service gives at submission (moju_core.feasibility).
     feasibility.check_fit(params, n_frames, n_points, has_rotations=rotations is not None)
     values, fitted, borrowed, exact_entries = None, observed, False, observed
+    completion_rank, exact_completion = None, False
     if observed is not None:
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
         # completion of W (moju_core.missing), with the entries it does not determine filled
         # from the points' neighbours (moju_core.neighbours).
         model = missing.complete(W, observed)
+        completion_rank, exact_completion = model.rank, model.exact
         # The noise from the fully observed blocks, relative to the completed tracks' mean
         # square; a completion less precise than a measurement of noisy tracks is not data.
         block_noise = missing.observed_noise_variance(W, observed)
@@ -194,7 +196,7 @@ def _reconstruct(
         fitted = reliable | borrowed_points[None, :]
         fitted = None if fitted.all() else fitted
         # An exact model predicts its trusted entries as exactly as they would be measured.
-        exact_entries = reliable if model.exact else observed
+        exact_entries = reliable if exact_completion else observed
     centred, scale = normalise(W)
 
     report("rotations")
@@ -216,7 +218,7 @@ def _reconstruct(
         # borrowed (then as data): with the observed entries fitted exactly and the hidden
         # ones softly, face3 (combined occlusion, seeds 2 / 3) went from 0.0215 / 0.0170 to
         # 0.109 / diverged (docs/solver.md, "Missing data").
-        exact_data = exact_data and (model.exact or (fitted is None and not borrowed))
+        exact_data = exact_data and (exact_completion or (fitted is None and not borrowed))
     if params.rotations == "known":
         estimate = cameras.CameraEstimate(rotations, "known")
     else:
@@ -365,6 +367,8 @@ def _reconstruct(
             smoothness_trials=tuple(smoothness_trials),
             signal_fit=signal_fitted,
             trajectory_basis=out.trajectory_basis,
+            completion_rank=completion_rank,
+            exact_completion=exact_completion,
         ),
     )
 

@@ -418,6 +418,9 @@ def test_noisy_tracks_get_no_exact_model_and_the_rank_chosen_by_held_out_error(s
     assert missing.exact_model(W, visibility) is None
     model = missing.complete(W, visibility)
     assert not model.exact and model.rank == missing.choose_rank(W, visibility)
+    result = reconstruct(_with_nan(W, visibility), SolverParams(max_iter=1, smoothness=0.0))
+    assert not result.diagnostics.exact_completion
+    assert result.diagnostics.completion_rank == model.rank
 
 
 def test_an_exact_model_is_refused_when_alternating_least_squares_stalls(monkeypatch):
@@ -456,6 +459,8 @@ def test_an_exactly_low_rank_face_with_missing_data_is_solved_as_if_complete():
     params = SolverParams(seed=1)
     result = reconstruct(_with_nan(data.W, visibility), params)
     complete = reconstruct(data.W, params)
+    assert result.diagnostics.exact_completion and result.diagnostics.completion_rank >= 12
+    assert complete.diagnostics.completion_rank is None
     assert rotation_error_deg(result.rotations, data.rotations) < 0.1
     errors = [e3d(r.shapes, data.shapes) for r in (result, complete)]
     assert errors[0] < 1.2 * errors[1]
