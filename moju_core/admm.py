@@ -278,38 +278,34 @@ def shape_update(state: LoopState, settings: LoopSettings) -> None:
     n_frames, n_points = state.n_frames, state.n_points
     np.add(state.sharp, state.scaled, out=state.work)
     target = state.work.reshape(n_frames, 3, n_points)
-    if settings.exact_data and state.measured is not None:
-        hidden = ~state.measured
-        if state.observed is None and state.depth_pull is None:
-            # Kept while the tracks stay (with a mask, reprojection_error moves them).
-            state.depth_pull = temporal_prior.depth_pull(
-                state.back_projected, state.normals, settings.prior
-            )
-        temporal_prior.masked_depth_step(
-            state.back_projected,
-            state.measured,
-            hidden if state.observed is None else hidden & state.observed,
-            state.normals,
-            target,
-            state.rho,
-            settings.prior,
-            state.shapes,
-            pull=state.depth_pull if state.observed is None else None,
-        )
-    elif settings.exact_data:
+    if settings.exact_data:
         if state.depth_pull is None:
             state.depth_pull = temporal_prior.depth_pull(
                 state.back_projected, state.normals, settings.prior
             )
-        temporal_prior.depth_step(
-            state.back_projected,
-            state.normals,
-            target,
-            state.rho,
-            settings.prior,
-            state.shapes,
-            pull=state.depth_pull,
-        )
+        if state.measured is None:
+            temporal_prior.depth_step(
+                state.back_projected,
+                state.normals,
+                target,
+                state.rho,
+                settings.prior,
+                state.shapes,
+                pull=state.depth_pull,
+            )
+        else:
+            hidden = ~state.measured
+            temporal_prior.masked_depth_step(
+                state.back_projected,
+                state.measured,
+                hidden if state.observed is None else hidden & state.observed,
+                state.normals,
+                target,
+                state.rho,
+                settings.prior,
+                state.shapes,
+                pull=state.depth_pull,
+            )
     elif settings.exact_prior:
         if state.observed is not None:
             filled = camera.fill_unobserved(
@@ -430,6 +426,10 @@ def reprojection_error(state: LoopState, settings: LoopSettings) -> float:
         # back_project is linear in the tracks: update it by the shift's back-projection.
         moved_back = np.einsum("fji,fj->fi", state.rotations, shift)
         state.back_projected += moved_back[:, :, None] * observed[:, None, :]
+        if state.depth_pull is not None:  # the exact fit's constant part, kept in step
+            temporal_prior.add_shifted_depth_pull(
+                state.depth_pull, moved_back, observed, state.normals, settings.prior
+            )
     return float(np.sqrt(np.vdot(reprojection, reprojection) / (2 * settings.n_observed)))
 
 
