@@ -416,19 +416,22 @@ def reprojection_error(state: LoopState, settings: LoopSettings) -> float:
     """
     reprojection = camera.project(state.rotations, state.shapes, out=state.reprojection)
     reprojection -= state.tracks
-    observed = state.observed
-    if observed is not None:
-        reprojection *= observed[:, None, :]
+    if state.observed is not None:
+        # Everywhere, then undone at the few unobserved entries (cheaper than masking).
+        frames, points = state.unobserved_entries()
+        reprojection[frames, :, points] = 0.0
         shift = reprojection.sum(axis=2) / settings.frame_counts  # (F, 2), R S - W on average
-        moved = shift[:, :, None] * observed[:, None, :]
-        state.tracks += moved
-        reprojection -= moved
+        state.tracks += shift[:, :, None]
+        state.tracks[frames, :, points] -= shift[frames]
+        reprojection -= shift[:, :, None]
+        reprojection[frames, :, points] = 0.0
         # back_project is linear in the tracks: update it by the shift's back-projection.
         moved_back = np.einsum("fji,fj->fi", state.rotations, shift)
-        state.back_projected += moved_back[:, :, None] * observed[:, None, :]
+        state.back_projected += moved_back[:, :, None]
+        state.back_projected[frames, :, points] -= moved_back[frames]
         if state.depth_pull is not None:  # the exact fit's constant part, kept in step
             temporal_prior.add_shifted_depth_pull(
-                state.depth_pull, moved_back, observed, state.normals, settings.prior
+                state.depth_pull, moved_back, (frames, points), state.normals, settings.prior
             )
     return float(np.sqrt(np.vdot(reprojection, reprojection) / (2 * settings.n_observed)))
 

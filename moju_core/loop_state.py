@@ -109,6 +109,9 @@ class LoopState:
     measured : ndarray of shape (F, P), bool, or None
         With an exact fit of tracks with hidden entries, the observed entries (fitted exactly;
         the other entries of ``observed`` softly); None otherwise.
+    unobserved : (ndarray, ndarray) or None
+        Frame and point indices of the entries ``observed`` leaves out, once computed
+        (:meth:`unobserved_entries`); reset when the points are permuted.
     """
 
     rotations: np.ndarray
@@ -133,6 +136,14 @@ class LoopState:
     svt_warm: lrr.WarmStart = field(default_factory=lrr.WarmStart)
     depth_pull: np.ndarray | None = None
     measured: np.ndarray | None = None
+    unobserved: tuple[np.ndarray, np.ndarray] | None = None
+
+    def unobserved_entries(self) -> tuple[np.ndarray, np.ndarray]:
+        """(frames, points) of the entries not in ``observed`` (which must be set), cached:
+        they are few, and updating them apart is cheaper than masking (F, P) arrays."""
+        if self.unobserved is None:
+            self.unobserved = np.nonzero(~self.observed)
+        return self.unobserved
 
     @property
     def n_frames(self) -> int:
@@ -172,6 +183,7 @@ class LoopState:
         self.tracks = permute_points(self.tracks, perm)
         if self.observed is not None:
             self.observed = permute_points(self.observed, perm)
+            self.unobserved = None
         if self.measured is not None:
             self.measured = permute_points(self.measured, perm)
         if self.features is not None:

@@ -297,6 +297,6 @@ def test_the_shifted_pull_equals_the_pull_of_the_shifted_back_projection(n_frame
     prior = temporal_prior.temporal_prior(n_frames, 7.0)
     before = rng.standard_normal((n_frames, 40))
     after = before.copy()
-    temporal_prior.add_shifted_depth_pull(after, shift, mask, normals, prior)
+    temporal_prior.add_shifted_depth_pull(after, shift, np.nonzero(~mask), normals, prior)
     moved = shift[:, :, None] * mask[:, None, :]
     assert_allclose(after, before + temporal_prior.depth_pull(moved, normals, prior), atol=1e-12)
