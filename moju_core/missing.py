@@ -95,6 +95,15 @@ EXACT_MODEL_ERROR = 1e-10
 #: rank pay 20-100 sweeps per candidate for nothing (0.2-0.7 s at 1,000 points).
 EXACT_POINTS = 500
 EXACT_CANDIDATES = 2
+#: :func:`_trimmed`: a point sees every direction of an orthonormal basis on its observed rows
+#: when their smallest singular value is at least this (face3, combined occlusion, 17
+#: directions for W's 14: 10-17 % of the points at 3e-7 to 2e-6, the rest at 0.18 and above),
+#: and a drop of the coefficients' singular values by this factor marks where the spare
+#: directions begin (there 1.5e-4 -> 8.5e-8 and 2.0e-4 -> 1.2e-6 of the largest; between W's
+#: own directions the steps were 0.12-0.95, and only the sizes from the windows' rank up are
+#: tried, each kept only if ALS then fits exactly).
+VISIBLE_DIRECTIONS = 1e-2
+SPARE_GAP = 0.1
 #: Fewer well-seen points than this many test points' worth (sparse markers: 41 on face4) do
 #: not test a model: :func:`exact_model` does not try.
 EXACT_MIN_TEST_POINTS = 10
@@ -405,6 +414,8 @@ def exact_model(W: np.ndarray, visibility: np.ndarray) -> LowRank | None:
                 break
         else:
             continue
+        if size > rank:
+            left = _trimmed(W[:, fitting], visibility[:, fitting], left, rank)
         left = _exact_span(left, _solve_columns(left, *_masked(W, visibility, fitting)))
         right = _solve_columns(left, np.where(training, sample, 0.0),
                                training.astype(np.float64), EXACT_RIDGE)  # fmt: skip
@@ -457,6 +468,37 @@ def _alternate(
                 return None
         left = _solve_columns(right.T, data.T, weights.T, EXACT_RIDGE).T
     return None
+
+
+def _trimmed(W: np.ndarray, visibility: np.ndarray, left: np.ndarray, smallest: int) -> np.ndarray:
+    """An exact fit ``left`` (2F, k) of more directions than W has, cut to W's column space.
+
+    ALS fits the observed entries exactly with spare directions that are next to zero on the
+    observed rows of some points, and those points' coefficients carry them at their hidden
+    entries (face3, combined occlusion: errors there up to 0.25 of the tracks' range). The
+    other points (the smallest singular value of ``left``'s orthonormal basis on their
+    observed rows at least :data:`VISIBLE_DIRECTIONS`) determine their coefficients, which
+    then span W's directions only: the leading ``k'`` of them, for each ``k'`` from
+    ``smallest`` up at which the coefficients' singular values drop by :data:`SPARE_GAP`,
+    start ALS (:func:`_alternate`); the first exact fit is returned, else ``left``.
+    O(F n k^2) for the n points and each ALS sweep.
+    """
+    basis = np.linalg.qr(left)[0]
+    mask = expand_mask(visibility).astype(np.float64)
+    outer = (basis[:, :, None] * basis[:, None, :]).reshape(basis.shape[0], -1)
+    normals = (mask.T @ outer).reshape(-1, basis.shape[1], basis.shape[1])
+    visible = np.linalg.eigvalsh(normals)[:, 0] >= VISIBLE_DIRECTIONS**2
+    if not visible.any():
+        return left
+    coefficients = _solve_columns(basis, *_masked(W, visibility, np.flatnonzero(visible)))
+    directions, values, _ = np.linalg.svd(coefficients, full_matrices=False)
+    for size in range(smallest, basis.shape[1]):
+        if values[size] > SPARE_GAP * values[size - 1]:
+            continue
+        fitted = _alternate(W, visibility, basis @ directions[:, :size], EXACT_PATIENCE)
+        if fitted is not None:
+            return fitted
+    return left
 
 
 def _exact_span(left: np.ndarray, right: np.ndarray) -> np.ndarray:

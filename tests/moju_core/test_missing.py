@@ -410,6 +410,33 @@ def test_an_exactly_low_rank_w_gets_an_exact_model_at_its_rank():
     )
 
 
+def test_spare_directions_of_an_exact_fit_are_cut_to_the_column_space_of_w():
+    rng = np.random.default_rng(15)
+    W = _low_rank_w(rng, n_rows=120, n_points=400, rank=5)  # uncentred: rank 6
+    visibility = rng.random((60, 400)) > 0.02
+    visibility[10:20, :80] = False  # 80 points hidden in frames 10-19
+    # An exact fit with two spare directions on those frames' rows only, mixed in.
+    spare = np.zeros((120, 2))
+    spare[20:40] = rng.standard_normal((20, 2))
+    left = np.hstack([np.linalg.svd(W, full_matrices=False)[0][:, :6], spare])
+    left = left @ rng.standard_normal((8, 8))
+    columns = np.arange(400)
+    coefficients = missing._solve_columns(left, *missing._masked(W, visibility, columns))
+    observed = np.repeat(visibility, 2, axis=0)
+    fitted = left @ coefficients
+    assert np.abs(fitted - W)[observed].max() < 1e-6 * np.abs(W).max()
+    # The 80 points' coefficients use the spare directions at their hidden entries.
+    assert np.abs(fitted - W)[~observed].max() > 1e-2 * np.abs(W).max()
+    assert missing._exact_span(left, coefficients).shape[1] == 8
+    trimmed = missing._trimmed(W, visibility, left, 6)
+    assert trimmed.shape[1] == 6
+    cosines = np.linalg.svd(
+        np.linalg.svd(W, full_matrices=False)[0][:, :6].T @ np.linalg.qr(trimmed)[0],
+        compute_uv=False,
+    )
+    assert cosines.min() > 1 - 1e-10
+
+
 @pytest.mark.parametrize("sigma", [1e-3, 1e-2])
 def test_noisy_tracks_get_no_exact_model_and_the_rank_chosen_by_held_out_error(sigma):
     rng = np.random.default_rng(12)
