@@ -40,6 +40,7 @@ from moju_core.loop_state import (
     GroupCoefficients,
     LoopSettings,
     LoopState,
+    flat,
     initial_state,
     loop_settings,
     permute_points,
@@ -418,20 +419,26 @@ def reprojection_error(state: LoopState, settings: LoopSettings) -> float:
     reprojection -= state.tracks
     if state.observed is not None:
         # Everywhere, then undone at the few unobserved entries (cheaper than masking).
-        frames, points = state.unobserved_entries()
-        reprojection[frames, :, points] = 0.0
+        entries = state.unobserved_entries()
+        in_tracks, track_rows = entries.indices[2]
+        flat(reprojection)[in_tracks] = 0.0
         shift = reprojection.sum(axis=2) / settings.frame_counts  # (F, 2), R S - W on average
         state.tracks += shift[:, :, None]
-        state.tracks[frames, :, points] -= shift[frames]
+        flat(state.tracks)[in_tracks] -= flat(shift)[track_rows]
         reprojection -= shift[:, :, None]
-        reprojection[frames, :, points] = 0.0
+        flat(reprojection)[in_tracks] = 0.0
         # back_project is linear in the tracks: update it by the shift's back-projection.
         moved_back = np.einsum("fji,fj->fi", state.rotations, shift)
         state.back_projected += moved_back[:, :, None]
-        state.back_projected[frames, :, points] -= moved_back[frames]
+        in_shapes, shape_rows = entries.indices[3]
+        flat(state.back_projected)[in_shapes] -= flat(moved_back)[shape_rows]
         if state.depth_pull is not None:  # the exact fit's constant part, kept in step
             temporal_prior.add_shifted_depth_pull(
-                state.depth_pull, moved_back, (frames, points), state.normals, settings.prior
+                state.depth_pull,
+                moved_back,
+                (entries.frames, entries.points),
+                state.normals,
+                settings.prior,
             )
     return float(np.sqrt(np.vdot(reprojection, reprojection) / (2 * settings.n_observed)))
 

@@ -37,6 +37,30 @@ def permute_points(points_last: np.ndarray, perm: np.ndarray) -> np.ndarray:
     return np.take(points_last, perm, axis=-1)
 
 
+class Entries:
+    """A few (frame, point) entries of (F, P) arrays, as flat indices into the raveled
+    (F, c, P) arrays of the loop (c = 2: tracks; c = 3: shapes) and their per-frame (F, c)
+    rows: fancy indexing by flat indices is about 5x faster than by (frames, :, points).
+    """
+
+    def __init__(self, mask: np.ndarray) -> None:
+        self.frames, self.points = np.nonzero(mask)
+        n_points = mask.shape[1]
+        #: width c -> (indices into the raveled (F, c, P) array, into the raveled (F, c) one)
+        self.indices: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        for width in (2, 3):
+            rows = (self.frames[:, None] * width + np.arange(width)).ravel()
+            points = np.repeat(self.points, width)
+            self.indices[width] = (rows * n_points + points, rows)
+
+
+def flat(array: np.ndarray) -> np.ndarray:
+    """``array`` raveled as a view (writes go to it); it must be C-contiguous."""
+    if not array.flags.c_contiguous:
+        raise ValueError("a flat view needs a C-contiguous array")
+    return array.reshape(-1)
+
+
 def group_bounds(sorted_labels: np.ndarray, n_groups: int) -> np.ndarray:
     """Column bounds of the groups: group i is columns ``bounds[i]:bounds[i + 1]``.
 
@@ -109,9 +133,9 @@ class LoopState:
     measured : ndarray of shape (F, P), bool, or None
         With an exact fit of tracks with hidden entries, the observed entries (fitted exactly;
         the other entries of ``observed`` softly); None otherwise.
-    unobserved : (ndarray, ndarray) or None
-        Frame and point indices of the entries ``observed`` leaves out, once computed
-        (:meth:`unobserved_entries`); reset when the points are permuted.
+    unobserved : Entries or None
+        The entries ``observed`` leaves out, once computed (:meth:`unobserved_entries`);
+        reset when the points are permuted.
     """
 
     rotations: np.ndarray
@@ -136,13 +160,13 @@ class LoopState:
     svt_warm: lrr.WarmStart = field(default_factory=lrr.WarmStart)
     depth_pull: np.ndarray | None = None
     measured: np.ndarray | None = None
-    unobserved: tuple[np.ndarray, np.ndarray] | None = None
+    unobserved: Entries | None = None
 
-    def unobserved_entries(self) -> tuple[np.ndarray, np.ndarray]:
-        """(frames, points) of the entries not in ``observed`` (which must be set), cached:
-        they are few, and updating them apart is cheaper than masking (F, P) arrays."""
+    def unobserved_entries(self) -> Entries:
+        """The entries not in ``observed`` (which must be set), cached: they are few, and
+        updating them apart is cheaper than masking (F, P) arrays."""
         if self.unobserved is None:
-            self.unobserved = np.nonzero(~self.observed)
+            self.unobserved = Entries(~self.observed)
         return self.unobserved
 
     @property

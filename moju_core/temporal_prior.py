@@ -318,6 +318,10 @@ def add_shifted_depth_pull(
     if n_frames < 3:
         return  # no second differences
     frames, points = excluded
+    entries = frames * pull.shape[1] + points  # into the raveled pull
+    flat_pull = pull.reshape(-1)
+    if not np.shares_memory(flat_pull, pull):
+        raise ValueError("pull must be C-contiguous: it is updated in place")
     total = np.zeros(n_frames)
     for k in range(-2, 3):
         rows = np.arange(max(0, -k), min(n_frames, n_frames - k))  # f with f + k in range
@@ -333,7 +337,7 @@ def add_shifted_depth_pull(
         source = frames - k  # the frame f whose pull reads the excluded entry (f + k, p)
         inside = (source >= 0) & (source < n_frames)
         # For one k every excluded entry reaches a different (f, p): no repeated index.
-        pull[source[inside], points[inside]] -= coefficient[source[inside]]
+        flat_pull[entries[inside] - k * pull.shape[1]] -= coefficient[source[inside]]
     pull += total[:, None]
 
 
