@@ -191,6 +191,7 @@ def run(
         (name, n_frames, closing_points if dense else SPARSE_POINTS, source, seed,
          dense_repeats if dense else repeats if seed == seeds[0] else 1)
         for name, n_frames, dense, source in CLOSING_CASES
+        if name in names
         for seed in seeds
     ]  # fmt: skip
     sweeps = [(name, seed, n_points, levels, seed == seeds[0]) for name in names for seed in seeds]
@@ -370,7 +371,10 @@ def main(argv: list[str] | None = None) -> int:
         f"{QUICK_POINTS} with --quick)",
     )  # fmt: skip
     parser.add_argument("--quick", action="store_true", help="small sizes, two levels, seed 0")
-    parser.add_argument("--sequences", nargs="+", default=list(SEQUENCES), choices=SEQUENCES)
+    parser.add_argument(
+        "--sequences", nargs="+", default=list(SEQUENCES), choices=SEQUENCES,
+        help="the sequences of the sweep and of the closing checks (default: all)",
+    )  # fmt: skip
     parser.add_argument("--seeds", nargs="+", type=int, default=None, help="default 0 1")
     parser.add_argument(
         "--repeats", type=int, default=None, help="timed runs of the sparse check (default 3)"

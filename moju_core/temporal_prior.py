@@ -459,15 +459,14 @@ def masked_depth_step(
     moved = solve_factored_bands(factor, moved).reshape(n_frames, 3, points.size)
     along = normals[:, None, :] @ moved  # (F, 1, n): the filtered target's depth
     moved -= normals[:, :, None] * along
-    anchor = anchored[:, None, points].astype(np.float64)
-    seen = back_projected[:, :, points]
-    moved *= rho
-    moved += anchor * seen
-    moved /= rho + anchor
-    np.copyto(moved, seen, where=measured[:, None, points])
+    # The offset from the tracks: (rho u + a s) / (rho + a) - s = rho / (rho + a) (u - s),
+    # and none where measured.
+    moved -= back_projected[:, :, points]
+    weights = np.where(anchored[:, points], rho / (rho + 1.0), 1.0)
+    weights[measured[:, points]] = 0.0
+    moved *= weights[:, None, :]
     # The depth step is linear in the fixed part: its pull and its shapes change by the
     # moved points' offset only (column by column).
-    moved -= seen
     pull = pull.copy()
     pull[:, points] += depth_pull(moved, normals, prior)
     depth_step(back_projected, normals, target, rho, prior, out, pull)
