@@ -413,32 +413,27 @@ def reprojection_error(state: LoopState, settings: LoopSettings) -> float:
 
     With a visibility mask the per-frame translation is an unknown of the masked data term
     too: the mean residual of each frame's observed points is moved into the tracks (and the
-    data term's right-hand side is recomputed).
+    data term's right-hand side is recomputed). Into every entry: no step reads the tracks
+    at an unobserved entry (the soft and exact-prior steps mask or fill them, and the masked
+    depth step places them from the coupling target alone), so moving them too changes
+    nothing and saves indexing them.
     """
     reprojection = camera.project(state.rotations, state.shapes, out=state.reprojection)
     reprojection -= state.tracks
     if state.observed is not None:
-        # Everywhere, then undone at the few unobserved entries (cheaper than masking).
-        entries = state.unobserved_entries()
-        in_tracks, track_rows = entries.indices[2]
-        flat(reprojection)[in_tracks] = 0.0
+        # Zeroed at the few unobserved entries (cheaper than masking).
+        unobserved = state.unobserved_entries()
+        flat(reprojection)[unobserved] = 0.0
         shift = reprojection.sum(axis=2) / settings.frame_counts  # (F, 2), R S - W on average
         state.tracks += shift[:, :, None]
-        flat(state.tracks)[in_tracks] -= flat(shift)[track_rows]
         reprojection -= shift[:, :, None]
-        flat(reprojection)[in_tracks] = 0.0
+        flat(reprojection)[unobserved] = 0.0
         # back_project is linear in the tracks: update it by the shift's back-projection.
         moved_back = np.einsum("fji,fj->fi", state.rotations, shift)
         state.back_projected += moved_back[:, :, None]
-        in_shapes, shape_rows = entries.indices[3]
-        flat(state.back_projected)[in_shapes] -= flat(moved_back)[shape_rows]
         if state.depth_pull is not None:  # the exact fit's constant part, kept in step
             temporal_prior.add_shifted_depth_pull(
-                state.depth_pull,
-                moved_back,
-                (entries.frames, entries.points),
-                state.normals,
-                settings.prior,
+                state.depth_pull, moved_back, state.normals, settings.prior
             )
     return float(np.sqrt(np.vdot(reprojection, reprojection) / (2 * settings.n_observed)))
 

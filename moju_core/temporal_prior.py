@@ -290,55 +290,27 @@ def depth_pull(back_projected: np.ndarray, normals: np.ndarray, prior: TemporalP
 
 
 def add_shifted_depth_pull(
-    pull: np.ndarray,
-    shift: np.ndarray,
-    excluded: tuple[np.ndarray, np.ndarray],
-    normals: np.ndarray,
-    prior: TemporalPrior,
+    pull: np.ndarray, shift: np.ndarray, normals: np.ndarray, prior: TemporalPrior
 ) -> None:
     """Add to ``pull`` the :func:`depth_pull` of ``shift[f]`` moved into the back-projection of
-    every entry but the ``excluded`` ones, in place, without an (F, 3, P) array.
+    every entry, in place, without an (F, 3, P) array.
 
-    ``(D^T D S)[f] = sum_k (D^T D)[f, f + k] S[f + k]`` over the 5 diagonals, so the change is
-    ``c_k[f]`` summed over k, with ``c_k[f] = gamma (D^T D)[f, f + k] n_f . shift[f + k]``, on
-    every entry, less ``c_k[f]`` at (f, p) where (f + k, p) is excluded. One pass over (F, P)
-    and the excluded entries, O(F P).
+    ``(D^T D S)[f] = sum_k (D^T D)[f, f + k] S[f + k]`` over the 5 diagonals, so the change
+    is the same for every point: ``sum_k gamma (D^T D)[f, f + k] n_f . shift[f + k]``. O(F P).
 
     Parameters
     ----------
     pull : ndarray of shape (F, P)
         Updated in place.
     shift : ndarray of shape (F, 3)
-    excluded : (ndarray, ndarray)
-        Frame and point indices of the entries that do not move.
     normals : ndarray of shape (F, 3)
     prior : TemporalPrior
     """
     n_frames = shift.shape[0]
     if n_frames < 3:
         return  # no second differences
-    frames, points = excluded
-    entries = frames * pull.shape[1] + points  # into the raveled pull
-    flat_pull = pull.reshape(-1)
-    if not np.shares_memory(flat_pull, pull):
-        raise ValueError("pull must be C-contiguous: it is updated in place")
-    total = np.zeros(n_frames)
-    for k in range(-2, 3):
-        rows = np.arange(max(0, -k), min(n_frames, n_frames - k))  # f with f + k in range
-        if k >= 0:  # (D^T D)[f, f + k] is stored at bands[2 - k, f + k]
-            band = prior.bands[2 - k, rows + k]
-        else:  # symmetric: (D^T D)[f + k, f] at bands[2 + k, f]
-            band = prior.bands[2 + k, rows]
-        coefficient = np.zeros(n_frames)
-        coefficient[rows] = (
-            prior.weight * band * np.einsum("fc,fc->f", normals[rows], shift[rows + k])
-        )
-        total += coefficient
-        source = frames - k  # the frame f whose pull reads the excluded entry (f + k, p)
-        inside = (source >= 0) & (source < n_frames)
-        # For one k every excluded entry reaches a different (f, p): no repeated index.
-        flat_pull[entries[inside] - k * pull.shape[1]] -= coefficient[source[inside]]
-    pull += total[:, None]
+    moved = np.einsum("fc,fc->f", normals, penalty_times(shift[:, :, None])[:, :, 0])
+    pull += prior.weight * moved[:, None]
 
 
 def depth_step(
