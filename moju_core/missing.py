@@ -192,6 +192,10 @@ class LowRank:
         )
 
 
+#: Entries of the (n, block, k) products :func:`_variance` forms at a time (8 MB).
+VARIANCE_BLOCK = 1_000_000
+
+
 def _variance(features: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``x_i^T G_j^{-1} x_i`` for every i (rows of ``features``) and j (columns of ``mask``),
     G_j the normal matrix of the rows masked in for j; and ``x_i^T G^{-1} x_i`` (G over all
@@ -204,7 +208,15 @@ def _variance(features: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.nd
     inverse_full = np.linalg.inv(full + ridge)
     base = np.einsum("ia,ab,ib->i", features, inverse_full, features)
     inverses = np.linalg.inv(normals + ridge)  # (m, k, k)
-    variance = np.einsum("ia,mab,ib->im", features, inverses, features)
+    variance = np.empty((n, inverses.shape[0]))
+    # ``features @ G_j^-1`` for a block of j at a time as one (n, k) x (k, block k) product,
+    # then the row-wise dot with the features: O(n m k^2) in BLAS, (n, block, k) at a time.
+    block = max(1, VARIANCE_BLOCK // max(1, n * k))
+    for start in range(0, inverses.shape[0], block):
+        chunk = inverses[start : start + block]  # (b, k, k)
+        product = features @ chunk.transpose(1, 0, 2).reshape(k, -1)  # (n, b k)
+        product = product.reshape(n, chunk.shape[0], k)
+        variance[:, start : start + block] = np.einsum("ibk,ik->ib", product, features)
     return variance, np.maximum(base, 1e-300)
 
 
