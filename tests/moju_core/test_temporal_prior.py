@@ -272,12 +272,13 @@ def test_an_exact_fit_stops_at_the_gap_it_can_resolve():
     assert result.n_iter < defaults.expected_iterations(result.params)  # before rho_max
 
 
-@pytest.mark.parametrize("n_columns", [3, 200])  # LAPACK's route and the row sweep
-def test_the_factored_band_solve_matches_lapack(n_columns):
+@pytest.mark.parametrize("n_rows", [1, 2, 3, 17])
+@pytest.mark.parametrize("n_columns", [3, 400])  # LAPACK's route and the row sweep
+def test_the_factored_band_solve_matches_lapack(n_rows, n_columns):
     from scipy.linalg import cho_solve_banded, cholesky_banded
 
+    assert 3 < temporal_prior.ROW_SWEEP_MIN_COLUMNS <= 400
     rng = np.random.default_rng(n_columns)
-    n_rows = 17
     normals = projection.viewing_directions(project_to_stiefel(rng.standard_normal((n_rows, 2, 3))))
     bands = temporal_prior.depth_bands(normals, 0.7, temporal_prior.temporal_prior(n_rows, 40.0))
     factor = cholesky_banded(bands)
