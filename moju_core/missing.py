@@ -487,7 +487,7 @@ def _trimmed(W: np.ndarray, visibility: np.ndarray, left: np.ndarray, smallest: 
 
     ALS fits the observed entries exactly with spare directions that are next to zero on the
     observed rows of some points, and those points' coefficients carry them at their hidden
-    entries (face3, combined occlusion: errors there up to 0.25 of the tracks' range). The
+    entries (face3, combined occlusion: errors there up to 0.25 of the largest track value). The
     other points (the smallest singular value of ``left``'s orthonormal basis on their
     observed rows at least :data:`VISIBLE_DIRECTIONS`) determine their coefficients, which
     then span W's directions only: the leading ``k'`` of them, for each ``k'`` from
