@@ -412,8 +412,7 @@ def exact_model(W: np.ndarray, visibility: np.ndarray) -> LowRank | None:
     if not held.any():
         return None
     training, held_rows = expand_mask(seen & ~held), expand_mask(held)
-    observed = np.where(expand_mask(seen), sample, np.nan)
-    energy = float(np.nanmean((observed - np.nanmean(observed, axis=1, keepdims=True)) ** 2))
+    energy = _centred_energy(sample, expand_mask(seen))
     candidates = window_subspace.column_spaces(W[:, fitting], visibility[:, fitting])
     for basis, rank in itertools.islice(candidates, EXACT_CANDIDATES):
         # The windows' rank first, then more of the stitched directions while ALS stalls.
@@ -443,6 +442,15 @@ def exact_model(W: np.ndarray, visibility: np.ndarray) -> LowRank | None:
     data = np.where(mask, W - translation[:, None], 0.0)
     right = _solve_columns(left, data, mask.astype(np.float64), EXACT_RIDGE)
     return LowRank(left=left, right=right, translation=translation, exact=True)
+
+
+def _centred_energy(values: np.ndarray, mask: np.ndarray) -> float:
+    """Mean square of the masked entries of ``values`` less their row means (rows with no
+    entry in ``mask`` count for nothing)."""
+    counts = mask.sum(axis=1, keepdims=True)
+    means = np.where(mask, values, 0.0).sum(axis=1, keepdims=True) / np.maximum(counts, 1)
+    centred = np.where(mask, values - means, 0.0)
+    return float(np.vdot(centred, centred) / max(1, mask.sum()))
 
 
 def _masked(

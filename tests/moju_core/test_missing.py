@@ -1,5 +1,7 @@
 """Missing data in the solver: completion, the masked S-update and PTA, and reconstruct."""
 
+import warnings
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
@@ -435,6 +437,16 @@ def test_spare_directions_of_an_exact_fit_are_cut_to_the_column_space_of_w():
         compute_uv=False,
     )
     assert cosines.min() > 1 - 1e-10
+
+
+def test_an_exact_model_tried_under_heavy_occlusion_warns_nothing():
+    # Test points can have frames where none of them is seen: no mean of an empty slice.
+    data = make_sequence("cloth", n_points=300, seed=0)
+    visibility = occlusion_mask(data, band=0.7, lost=0.4, dropout=0.0, seed=0)
+    W = np.where(np.repeat(visibility, 2, axis=0), data.W, 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        missing.exact_model(W, visibility)
 
 
 @pytest.mark.parametrize("sigma", [1e-3, 1e-2])
