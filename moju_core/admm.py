@@ -420,22 +420,25 @@ def reprojection_error(state: LoopState, settings: LoopSettings) -> float:
     """
     reprojection = camera.project(state.rotations, state.shapes, out=state.reprojection)
     reprojection -= state.tracks
-    if state.observed is not None:
-        # Zeroed at the few unobserved entries (cheaper than masking).
-        unobserved = state.unobserved_entries()
-        flat(reprojection)[unobserved] = 0.0
-        shift = reprojection.sum(axis=2) / settings.frame_counts  # (F, 2), R S - W on average
-        state.tracks += shift[:, :, None]
-        reprojection -= shift[:, :, None]
-        flat(reprojection)[unobserved] = 0.0
-        # back_project is linear in the tracks: update it by the shift's back-projection.
-        moved_back = np.einsum("fji,fj->fi", state.rotations, shift)
-        state.back_projected += moved_back[:, :, None]
-        if state.depth_pull is not None:  # the exact fit's constant part, kept in step
-            temporal_prior.add_shifted_depth_pull(
-                state.depth_pull, moved_back, state.normals, settings.prior
-            )
-    return float(np.sqrt(np.vdot(reprojection, reprojection) / (2 * settings.n_observed)))
+    if state.observed is None:
+        return float(np.sqrt(np.vdot(reprojection, reprojection) / (2 * settings.n_observed)))
+    # Zeroed at the few unobserved entries (cheaper than masking).
+    flat(reprojection)[state.unobserved_entries()] = 0.0
+    squared = float(np.vdot(reprojection, reprojection))
+    sums = reprojection.sum(axis=2)
+    shift = sums / settings.frame_counts  # (F, 2), R S - W on average
+    # Over the n_f observed entries of a frame, sum (r - shift)^2 = sum r^2 - shift * sum r:
+    # no second pass over the residuals (they are not read after this).
+    squared = max(squared - float(np.vdot(shift, sums)), 0.0)
+    state.tracks += shift[:, :, None]
+    # back_project is linear in the tracks: update it by the shift's back-projection.
+    moved_back = np.einsum("fji,fj->fi", state.rotations, shift)
+    state.back_projected += moved_back[:, :, None]
+    if state.depth_pull is not None:  # the exact fit's constant part, kept in step
+        temporal_prior.add_shifted_depth_pull(
+            state.depth_pull, moved_back, state.normals, settings.prior
+        )
+    return float(np.sqrt(squared / (2 * settings.n_observed)))
 
 
 def increase_penalty(state: LoopState, params: SolverParams) -> None:
