@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from moju_core import SolverParams, reconstruct
 from moju_core.datasets import Sequence as Dataset
@@ -97,7 +98,9 @@ def solve(
     if visibility is not None:
         W = data.W.copy()
         W[np.repeat(~visibility, 2, axis=0)] = np.nan
-    with warnings.catch_warnings(record=True) as caught:
+    # One BLAS thread, as the provenance states: with two, the BLAS rounding (and so the
+    # iteration counts) and the timings depend on the other work on the machine.
+    with warnings.catch_warnings(record=True) as caught, threadpool_limits(limits=1):
         warnings.simplefilter("always")
         start = time.perf_counter()
         result = reconstruct(W, params, rotations=data.rotations if known else None)
