@@ -400,6 +400,7 @@ def _summary(result: Result, n_frames: int, n_points: int, observed: float = 1.0
         method=result.params.method,
         tol=result.params.tol,
         shape_gap=_last_shape_gap(result),
+        exact_fit=result.diagnostics is not None and result.diagnostics.exact_fit,
     )
     seen = f" ({100 * observed:.1f} % observed)" if observed < 1.0 else ""
     return (

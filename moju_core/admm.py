@@ -35,7 +35,7 @@ import numpy as np
 from moju_core import clustering, grouping_steps, lrr, temporal_prior
 from moju_core.cameras import projection as camera
 from moju_core.cameras.refinement import fit_rotations_to_shapes
-from moju_core.defaults import EXACT_GAP_PRECISION, ROTATION_REFINE_RHO
+from moju_core.defaults import ROTATION_REFINE_RHO
 from moju_core.loop_state import (
     GroupCoefficients,
     LoopSettings,
@@ -47,7 +47,7 @@ from moju_core.loop_state import (
 )
 from moju_core.params import SolverParams
 from moju_core.result import StopReason, TrajectoryBasisFit
-from moju_core.stopping import StoppingTest
+from moju_core.stopping import StoppingTest, loop_tolerance
 
 #: Called once per iteration with (iteration, gap, rho); returning True stops the loop.
 IterationHook = Callable[[int, float, float], bool]
@@ -91,6 +91,9 @@ class LoopOutput:
         Trajectories moved between groups, summed over the regroupings.
     trajectory_basis : TrajectoryBasisFit or None
         Method ``"pta"`` only (built by the solver, not by :func:`run`).
+    exact_fit : bool
+        Whether the loop fitted the tracks exactly (its tolerance then
+        :func:`moju_core.stopping.loop_tolerance`).
     """
 
     shapes: np.ndarray
@@ -102,6 +105,7 @@ class LoopOutput:
     n_groups: int = 1
     label_changes: int = 0
     trajectory_basis: TrajectoryBasisFit | None = None
+    exact_fit: bool = False
 
 
 def run(
@@ -164,10 +168,7 @@ def run(
     if settings.local:
         initial_groups(state, settings, features)
     group_lrr = GroupCoefficients.initial(state.n_groups, n_frames, params.low_dim, params.seed)
-    tol = params.tol
-    if settings.exact_data and tol > 0:
-        tol = max(tol, EXACT_GAP_PRECISION)  # below it the gap is rounding (defaults)
-    stopping = StoppingTest(tol, params.rho_max)
+    stopping = StoppingTest(loop_tolerance(params.tol, settings.exact_data), params.rho_max)
     history: dict[str, list[float]] = {key: [] for key in HISTORY_KEYS}
     stop_reason, iteration = StopReason.MAX_ITER, 0
     for iteration in range(1, params.max_iter + 1):
@@ -193,6 +194,7 @@ def run(
         stop_reason=stop_reason,
         n_groups=state.n_groups,
         label_changes=state.label_changes,
+        exact_fit=settings.exact_data,
     )
 
 

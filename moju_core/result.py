@@ -149,6 +149,11 @@ class Diagnostics:
     exact_completion : bool
         Whether W was found exactly of that rank (:func:`moju_core.missing.exact_model`): the
         cameras and the fit then treat the trusted hidden entries as measured.
+    exact_fit : bool
+        Whether the loop fitted the tracks exactly (noise-free tracks, or the signal fit's
+        projection). It then stops once the shape gap is below
+        :func:`moju_core.stopping.loop_tolerance` (``EXACT_GAP_PRECISION``, 1e-5, when
+        ``params.tol`` is smaller): below it the gap is rounding.
     """
 
     n_groups_used: int
@@ -163,6 +168,7 @@ class Diagnostics:
     signal_fit: bool = False
     completion_rank: int | None = None
     exact_completion: bool = False
+    exact_fit: bool = False
 
     def __post_init__(self) -> None:
         if self.rotation_source not in get_args(RotationSource):

@@ -369,6 +369,7 @@ def _reconstruct(
             trajectory_basis=out.trajectory_basis,
             completion_rank=completion_rank,
             exact_completion=exact_completion,
+            exact_fit=out.exact_fit,
         ),
     )
 

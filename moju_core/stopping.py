@@ -7,15 +7,24 @@ shape gap is below tol and the last regrouping moved (almost) no trajectory: at 
 ``SETTLED_MOVE_FRACTION`` of them (:attr:`moju_core.loop_state.LoopState.grouping_settled`).
 A gap below ``GAP_PRECISION`` that has stopped falling for ``STALL_ITERATIONS`` iterations is
 at the precision of the S# step (its Gram-matrix SVD); it would not reach a smaller tol, and
-counts as converged too. ``tol = 0`` turns the convergence test off.
+counts as converged too. ``tol = 0`` turns the convergence test off. A loop that fits the
+tracks exactly stops at a shape gap of ``EXACT_GAP_PRECISION`` whatever smaller tol was asked
+(:func:`loop_tolerance`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from moju_core.defaults import GAP_PRECISION, STALL_ITERATIONS
+from moju_core.defaults import EXACT_GAP_PRECISION, GAP_PRECISION, STALL_ITERATIONS
 from moju_core.result import StopReason
+
+
+def loop_tolerance(tol: float, exact_fit: bool) -> float:
+    """The shape-gap tolerance the loop stops at: ``tol``, or at least
+    :data:`moju_core.defaults.EXACT_GAP_PRECISION` when it fits the tracks exactly (below it
+    the gap is rounding). 0 stays 0 (no convergence test)."""
+    return max(tol, EXACT_GAP_PRECISION) if exact_fit and tol > 0 else tol
 
 
 class StoppingTest:

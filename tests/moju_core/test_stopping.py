@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from moju_core.defaults import GAP_PRECISION, STALL_ITERATIONS
-from moju_core.stopping import StoppingTest
+from moju_core.defaults import EXACT_GAP_PRECISION, GAP_PRECISION, STALL_ITERATIONS
+from moju_core.stopping import StoppingTest, loop_tolerance
 
 
 def test_a_gap_below_tol_converges_only_once_the_grouping_settled() -> None:
@@ -41,3 +41,18 @@ def test_a_new_smallest_gap_restarts_the_stall_count() -> None:
         assert stopping(0.9 * GAP_PRECISION, True, 1.0) is None
     assert stopping(0.4 * GAP_PRECISION, True, 1.0) is None  # falling again
     assert stopping.since_smallest == 0
+
+
+@pytest.mark.parametrize(
+    ("tol", "exact_fit", "expected"),
+    [
+        (1e-10, True, EXACT_GAP_PRECISION),  # a finer tol than the exact fit can resolve
+        (1e-3, True, 1e-3),  # a coarser one is kept
+        (0.0, True, 0.0),  # no convergence test stays none
+        (1e-10, False, 1e-10),  # a soft fit keeps tol
+    ],
+)
+def test_the_loop_tolerance_of_an_exact_fit_is_its_precision(
+    tol: float, exact_fit: bool, expected: float
+) -> None:
+    assert loop_tolerance(tol, exact_fit) == expected

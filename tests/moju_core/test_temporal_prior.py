@@ -268,8 +268,14 @@ def test_an_exact_fit_stops_at_the_gap_it_can_resolve():
     data = make_sequence("paper", n_points=300)
     result = reconstruct(data.W, SolverParams(smoothness=100.0), rotations=data.rotations)
     assert result.stop_reason == "converged"
+    assert result.diagnostics.exact_fit
     assert result.history["gap_shape"][-1] < defaults.EXACT_GAP_PRECISION
     assert result.n_iter < defaults.expected_iterations(result.params)  # before rho_max
+    noisy = make_sequence("paper", n_points=300, noise=0.03)
+    soft = reconstruct(
+        noisy.W, SolverParams(smoothness=100.0, max_iter=5), rotations=noisy.rotations
+    )
+    assert not soft.diagnostics.exact_fit
 
 
 @pytest.mark.parametrize("n_rows", [1, 2, 3, 17])
