@@ -284,8 +284,14 @@ def test_the_translation_refit_keeps_the_back_projection_of_the_tracks():
     state = initial_state(tracks, rotations, 1.0, observed)
     state.shapes += rng.standard_normal(state.shapes.shape)
     settings = loop_settings(params, 6, 20, observed, False)
-    admm.reprojection_error(state, settings)
+    rms = admm.reprojection_error(state, settings)
     assert_allclose(state.back_projected, projection.back_project(rotations, state.tracks))
+    # The RMS over the observed entries after the refit, computed directly: each frame's
+    # observed residuals now have mean zero.
+    residual = projection.project(rotations, state.shapes) - state.tracks
+    seen = np.repeat(observed[:, None, :], 2, axis=1)
+    assert_allclose(np.where(seen, residual, 0.0).sum(axis=2), 0.0, atol=1e-12)
+    assert_allclose(rms, np.sqrt(np.mean(residual[seen] ** 2)), rtol=1e-12)
 
 
 def test_the_cameras_with_missing_data_use_the_well_seen_points_values():
