@@ -270,7 +270,11 @@ def submit(
                 bar.close()
             resolved = job.result.resolved_parameters
             reason = describe_stop(
-                str(job.result.stop_reason), method=resolved.method, tol=resolved.tol
+                str(job.result.stop_reason),
+                method=resolved.method,
+                tol=resolved.tol,
+                shape_gap=job.result.shape_gap,
+                exact_fit=job.result.exact_fit,
             )
             click.echo(f"job {job.id} finished: {job.result.n_iter} iterations, {reason}")
             if output is not None:

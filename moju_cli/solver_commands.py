@@ -204,7 +204,7 @@ class _ProgressBar:
 
     def finish(self, result: Result) -> None:
         """Show the last shape gap of ``result``, which the stop reason is about."""
-        shape_gap = _last_shape_gap(result)
+        shape_gap = result.final_shape_gap
         if shape_gap is not None and self.bar.n:
             self.bar.set_postfix_str(f"shape gap={shape_gap:.1e}", refresh=True)
 
@@ -389,18 +389,13 @@ def _format_scores(scores: dict[str, float], *, rotations_estimated: bool) -> li
     return lines
 
 
-def _last_shape_gap(result: Result) -> float | None:
-    shape_gaps = result.history.get("gap_shape")
-    return float(shape_gaps[-1]) if shape_gaps is not None and len(shape_gaps) else None
-
-
 def _summary(result: Result, n_frames: int, n_points: int, observed: float = 1.0) -> str:
     reason = describe_stop(
         str(result.stop_reason),
         method=result.params.method,
         tol=result.params.tol,
-        shape_gap=_last_shape_gap(result),
-        exact_fit=result.diagnostics is not None and result.diagnostics.exact_fit,
+        shape_gap=result.final_shape_gap,
+        exact_fit=result.exact_fit,
     )
     seen = f" ({100 * observed:.1f} % observed)" if observed < 1.0 else ""
     return (

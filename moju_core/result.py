@@ -295,6 +295,18 @@ class Result:
         )
 
     @property
+    def final_shape_gap(self) -> float | None:
+        """The shape gap ``||S# - f(S)||_inf`` of the last iteration (``history["gap_shape"]``),
+        the quantity the stopping test compares with ``tol``; None without iterations."""
+        gaps = self.history.get("gap_shape")
+        return float(gaps[-1]) if gaps is not None and len(gaps) else None
+
+    @property
+    def exact_fit(self) -> bool:
+        """Whether the loop fitted the tracks exactly (:attr:`Diagnostics.exact_fit`)."""
+        return self.diagnostics is not None and self.diagnostics.exact_fit
+
+    @property
     def converged(self) -> bool:
         """True when the loop stopped because the gap fell below ``tol``."""
         return self.stop_reason is StopReason.CONVERGED

@@ -154,6 +154,21 @@ class ResultSummary(BaseModel):
         json_schema_extra={"enum": list(RESULT_STOP_REASONS)},
         examples=["converged"],
     )
+    shape_gap: float | None = Field(
+        None,
+        description=(
+            "Shape gap ||S# - f(S)||_inf of the last iteration, the quantity the loop's "
+            "convergence test compares with tol; null for a closed-form solve."
+        ),
+        examples=[8.6e-11],
+    )
+    exact_fit: bool = Field(
+        False,
+        description=(
+            "Whether the loop fitted the tracks exactly (noise-free tracks): its convergence "
+            "test then stops at that fit's precision, 1e-5, when tol is finer."
+        ),
+    )
     timings: dict[str, float] = Field(
         description="Seconds per solver stage.", examples=[{"total": 1.2}]
     )

@@ -97,6 +97,8 @@ def _summary(
         "tracking": tracking,
         "n_iter": int(result.n_iter),
         "stop_reason": str(result.stop_reason),
+        "shape_gap": result.final_shape_gap,
+        "exact_fit": result.exact_fit,
         "timings": {name: float(value) for name, value in result.timings.items()},
         "resolved_parameters": result.params.model_dump(mode="json"),
         # Distinct messages in order: a warning raised every iteration is shown once.

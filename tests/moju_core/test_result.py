@@ -29,6 +29,13 @@ def test_repr_is_short_and_shows_sizes_and_scalars(result):
     assert "array" not in text and "[" not in text
 
 
+def test_final_shape_gap_and_exact_fit_describe_the_end_of_the_loop(result):
+    assert result.final_shape_gap == result.history["gap_shape"][-1]
+    assert result.exact_fit is result.diagnostics.exact_fit
+    bare = dataclasses.replace(result, history={}, diagnostics=None)
+    assert bare.final_shape_gap is None and bare.exact_fit is False
+
+
 def test_stop_reason_and_stage_are_str_enums(result):
     assert result.stop_reason is StopReason.MAX_ITER
     assert result.stop_reason == "max_iter" and isinstance(result.stop_reason, str)

@@ -38,6 +38,10 @@ def test_finished_job_stores_result_and_summary(store, storage, settings, add_jo
         warnings.simplefilter("always")
         expected = reconstruct(face_W, params)
     np.testing.assert_allclose(stored.shapes, expected.shapes, rtol=0, atol=1e-9)
+    # The end of the loop as the CLI describes it: the last shape gap and whether it fitted
+    # the tracks exactly (noise-free tracks stop at that fit's precision).
+    assert record.result.shape_gap == expected.final_shape_gap > 0
+    assert record.result.exact_fit is expected.exact_fit
     # The solver's warnings reach the user, each once.
     assert record.result.warnings == list(dict.fromkeys(str(w.message) for w in caught))
     assert stored.metadata["job_id"] == str(job_id)
