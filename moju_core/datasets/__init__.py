@@ -27,6 +27,11 @@ spins the sheet about its rest normal by 3 degrees per frame, seen 45 +- 5 degre
 normal. The seed changes the deformation's phases and directions and the camera's phase (and
 the turntable's sense); one seed gives the same deformation under both cameras.
 
+``body-osc`` and ``body-turn`` (:data:`BODY_SEQUENCE_NAMES`) are sparse and articulated, like a
+motion capture: 41 markers riding on the bones of a 17-joint body that moves every joint
+smoothly (periods 80-300 frames), 350 frames, under an oscillating camera (+-30 degrees,
+period 60 frames) or a camera circling the body by 2 degrees per frame.
+
 Every sequence is an orthographic projection ``W_f = R_f S_f + t_f`` of the true shapes, with
 per-frame image translations ``t_f`` so that translation removal is exercised; lengths are in
 "object units" (face width 2, sheet lengths about 2 and 1.4), the image is in the same units.
@@ -35,14 +40,15 @@ is :func:`add_noise`. Everything is deterministic given ``seed``.
 
 The package's modules: :mod:`~moju_core.datasets.sequence` (the :class:`Sequence` type),
 :mod:`~moju_core.datasets.faces`, :mod:`~moju_core.datasets.sheets` (paper, cloth) and
-:mod:`~moju_core.datasets.hard` (the generators), :mod:`~moju_core.datasets.registry`
-(:func:`make_sequence` by name), :mod:`~moju_core.datasets.noise` and
-:mod:`~moju_core.datasets.occlusion`, and the surface building blocks they share
-(:mod:`~moju_core.datasets.surfaces`: point grids with their meshes, bumps, bending). Import
-the public names from ``moju_core.datasets``.
+:mod:`~moju_core.datasets.hard` and :mod:`~moju_core.datasets.body` (the generators),
+:mod:`~moju_core.datasets.registry` (:func:`make_sequence` by name),
+:mod:`~moju_core.datasets.noise` and :mod:`~moju_core.datasets.occlusion`, and the surface
+building blocks they share (:mod:`~moju_core.datasets.surfaces`: point grids with their
+meshes, bumps, bending). Import the public names from ``moju_core.datasets``.
 """
 
 from moju_core.datasets._camera_paths import CAMERA_MOTIONS, CameraMotion, RotationFrequency
+from moju_core.datasets.body import BODY_SEQUENCE_NAMES, body_sequence
 from moju_core.datasets.faces import face_sequence
 from moju_core.datasets.hard import (
     HARD_SEQUENCE_NAMES,
@@ -57,6 +63,7 @@ from moju_core.datasets.sequence import Sequence
 from moju_core.datasets.sheets import cloth_sequence, paper_sequence
 
 __all__ = [
+    "BODY_SEQUENCE_NAMES",
     "CAMERA_MOTIONS",
     "HARD_SEQUENCE_NAMES",
     "SEQUENCE_NAMES",
@@ -64,6 +71,7 @@ __all__ = [
     "RotationFrequency",
     "Sequence",
     "add_noise",
+    "body_sequence",
     "bumps_sequence",
     "cloth_sequence",
     "face_sequence",

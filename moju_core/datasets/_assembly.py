@@ -40,7 +40,7 @@ def finish(
     camera: np.ndarray,
     translation_rng: np.random.Generator,
     extent: float,
-    faces: np.ndarray,
+    faces: np.ndarray | None,
     colors: np.ndarray,
 ) -> Sequence:
     """Centre the shapes, project them and wrap everything into a :class:`Sequence`."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from moju_core.datasets.body import BODY_SEQUENCE_NAMES, body_sequence
 from moju_core.datasets.faces import face_sequence
 from moju_core.datasets.hard import HARD_GENERATORS, HARD_SEQUENCE_NAMES
 from moju_core.datasets.noise import add_noise
@@ -70,10 +71,16 @@ def make_sequence(
             camera=camera,  # type: ignore[arg-type]
             seed=seed,
         )
-    else:
-        raise ValueError(
-            f"name must be one of {SEQUENCE_NAMES + HARD_SEQUENCE_NAMES}, got {name!r}"
+    elif name in BODY_SEQUENCE_NAMES:
+        sizes = {"n_frames": n_frames, "n_points": n_points}
+        sequence = body_sequence(
+            **{k: v for k, v in sizes.items() if v is not None},
+            camera=name.split("-")[1],  # type: ignore[arg-type]
+            seed=seed,
         )
+    else:
+        known = SEQUENCE_NAMES + HARD_SEQUENCE_NAMES + BODY_SEQUENCE_NAMES
+        raise ValueError(f"name must be one of {known}, got {name!r}")
     if noise == 0:
         return sequence
     noisy = add_noise(sequence.W, noise, seed=seed)

@@ -8,10 +8,12 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from moju_core.datasets import (
+    BODY_SEQUENCE_NAMES,
     HARD_SEQUENCE_NAMES,
     SEQUENCE_NAMES,
     Sequence,
     add_noise,
+    body_sequence,
     bumps_sequence,
     cloth_sequence,
     face_sequence,
@@ -20,6 +22,7 @@ from moju_core.datasets import (
     paper_sequence,
     roll_sequence,
 )
+from moju_core.datasets.body import JOINTS, marker_bones
 from moju_core.datasets.surfaces import parameter_grid
 from moju_core.metrics import e3d, rigid_approximation
 
@@ -397,3 +400,51 @@ def test_make_sequence_with_noise_keeps_the_ground_truth() -> None:
 
 
 # --- speed ---------------------------------------------------------------------------------
+
+
+# --- articulated body ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", BODY_SEQUENCE_NAMES)
+def test_body_is_markers_projected_like_every_sequence(name: str) -> None:
+    sequence = make_sequence(name)
+    assert (sequence.n_frames, sequence.n_points, sequence.name) == (350, 41, name)
+    assert sequence.faces is None and sequence.colors.dtype == np.uint8
+    for f in (0, 100, 349):
+        projected = sequence.rotations[f] @ sequence.shapes[f].T
+        projected += sequence.translations[f][:, None]
+        assert_allclose(sequence.W[2 * f : 2 * f + 2], projected, rtol=0, atol=1e-12)
+    again = make_sequence(name)
+    assert_array_equal(again.W, sequence.W)
+    assert np.max(np.abs(make_sequence(name, seed=1).W - sequence.W)) > 1e-2
+
+
+def test_body_markers_keep_their_place_on_their_bone_while_limbs_move() -> None:
+    sequence = body_sequence(n_frames=200, n_points=64, seed=2)
+    bones = marker_bones(64)
+    distances = np.linalg.norm(sequence.shapes[:, :, None] - sequence.shapes[:, None], axis=-1)
+    spread = np.ptp(distances, axis=0)  # (P, P): how much each distance changes
+    same_bone = bones[:, None] == bones[None, :]
+    assert np.max(spread[same_bone]) < 1e-12  # rigid on their bone
+    # Markers of the two forearms move against each other by several centimetres (units ~m).
+    forearms = [list(JOINTS).index(j) for j in ("left wrist", "right wrist")]
+    left, right = (np.flatnonzero(bones == b) for b in forearms)
+    assert np.min(spread[np.ix_(left, right)]) > 0.05
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_body_is_far_from_any_rigid_shape(seed: int) -> None:
+    shapes = make_sequence("body-osc", seed=seed).shapes
+    assert e3d(rigid_approximation(shapes), shapes) > 0.1
+
+
+def test_body_cameras_oscillate_or_circle() -> None:
+    for seed in range(2):
+        osc = make_sequence("body-osc", seed=seed).rotations
+        yaw, pitch = yaw_pitch_deg(osc)
+        assert 29.0 <= np.max(np.abs(yaw)) <= 30.0 + 1e-9
+        assert np.ptp(pitch) > 10.0
+        circling = full_rotations(make_sequence("body-turn", seed=seed).rotations)
+        relative = circling[1:] @ circling[:-1].transpose(0, 2, 1)
+        cosines = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+        assert_allclose(np.degrees(np.arccos(cosines)), 2.0, atol=0.1)
