@@ -395,6 +395,21 @@ def test_noise_free_tracks_with_hidden_entries_are_fitted_exactly_where_observed
     assert e3d(result.shapes, data.shapes) < 0.014
 
 
+def test_an_exact_fit_that_throws_lost_tracks_off_the_object_is_solved_again_softly():
+    """Markers of the articulated body, 10 % of the tracks lost from a random frame on: the
+    masked exact fit's loop diverged on this seed (e3D 2.7e6, a lost marker 1e8 times the
+    image's reach away); the soft fit that replaces it gives 0.068 (complete tracks 0.033)."""
+    data = make_sequence("body-osc", seed=2)
+    visibility = occlusion_mask(data, band=0.0, lost=0.1, dropout=0.0, seed=2)
+    with pytest.warns(RuntimeWarning, match="threw hidden entries far off the object"):
+        result = reconstruct(_with_nan(data.W, visibility), rotations=data.rotations)
+    assert result.params.smoothness >= defaults.MIN_DEPTH_PRIOR  # the strong prior stays
+    reach = np.linalg.norm(data.shapes, axis=2).max()
+    assert np.linalg.norm(result.shapes, axis=2).max() < 2 * reach
+    assert e3d(result.shapes, data.shapes) < 0.1
+    assert not result.exact_fit
+
+
 def _band_visibility(n_frames=60, n_points=400, seed=0):
     face = make_sequence("face3", n_points=n_points, n_frames=n_frames, seed=seed)
     return occlusion_mask(face, band=0.2, lost=0.1, dropout=0.02, seed=seed)
