@@ -8,6 +8,10 @@ the tracks lost, 2 % dropout). Prints one line per solve and writes ``body.json`
 0.005).
 
     python benchmarks/body.py --seeds 0 1 2 3 --output-dir benchmarks/results
+    python benchmarks/body.py --seeds 0 1 --noise 0.01 0.03 --output-dir benchmarks/results
+
+With ``--noise``, every level is run too (``lambda_g``, :func:`moju_core.datasets.add_noise`),
+into ``body.{json,md}`` with a noise column.
 """
 
 from __future__ import annotations
@@ -26,9 +30,9 @@ RUNS = (("moju", "known"), ("bmm", "known"), ("pta", "known"), ("moju", "estimat
 E3D_FACTOR, E3D_SLACK = 1.25, 0.005
 
 
-def unit(name: str, seed: int) -> list[dict[str, Any]]:
+def unit(name: str, seed: int, noise: float = 0.0) -> list[dict[str, Any]]:
     """Every run of ``RUNS`` on one sequence and seed, complete and with missing entries."""
-    data = make_sequence(name, seed=seed)
+    data = make_sequence(name, seed=seed, noise=noise)
     hidden = occlusion_mask(data, **CLOSING, seed=seed)
     rows = []
     for method, source in RUNS:
@@ -41,29 +45,32 @@ def unit(name: str, seed: int) -> list[dict[str, Any]]:
     return rows
 
 
+def _check(complete: dict[str, Any], missing: dict[str, Any]) -> list[Any]:
+    """A table row's measured cells: missing %, e3D complete and missing, target, met?"""
+    target = E3D_FACTOR * complete["e3d"] + E3D_SLACK
+    return [
+        f"{100 * missing['missing']:.1f}", f"{complete['e3d']:.4f}", f"{missing['e3d']:.4f}",
+        f"{target:.4f}", "met" if missing["e3d"] <= target else "**missed**",
+        f"{complete['rotation_error_deg']:.1f} / {missing['rotation_error_deg']:.1f}",
+    ]  # fmt: skip
+
+
 def report_lines(rows: list[dict[str, Any]]) -> list[str]:
-    """One row per sequence, seed and run: e3D complete and missing, the target, met?"""
+    """One row per sequence, noise, seed and run: e3D complete and missing, the target, met?"""
     lines = []
-    for name in dict.fromkeys(r["sequence"] for r in rows):
-        for seed in dict.fromkeys(r["seed"] for r in rows if r["sequence"] == name):
-            for method, source in RUNS:
-                pair = [
-                    r
-                    for r in rows
-                    if (r["sequence"], r["seed"], r["method"], r["rotations"])
-                    == (name, seed, method, source)
-                ]
-                complete, missing = sorted(pair, key=lambda r: r["missing"])
-                target = E3D_FACTOR * complete["e3d"] + E3D_SLACK
-                lines.append([
-                    name, seed, method, source, f"{100 * missing['missing']:.1f}",
-                    f"{complete['e3d']:.4f}", f"{missing['e3d']:.4f}", f"{target:.4f}",
-                    "met" if missing["e3d"] <= target else "**missed**",
-                    f"{complete['rotation_error_deg']:.1f} / {missing['rotation_error_deg']:.1f}",
-                ])  # fmt: skip
+    for case in dict.fromkeys((r["sequence"], r["noise"], r["seed"]) for r in rows):
+        for method, source in RUNS:
+            key = (*case, method, source)
+            pair = [
+                r
+                for r in rows
+                if (r["sequence"], r["noise"], r["seed"], r["method"], r["rotations"]) == key
+            ]
+            complete, missing = sorted(pair, key=lambda r: r["missing"])
+            lines.append([*key, *_check(complete, missing)])
     header = [
-        "sequence", "seed", "method", "rotations", "missing %", "e3D complete", "e3D missing",
-        "target", "e3D", "rotation error (deg)",
+        "sequence", "noise", "seed", "method", "rotations", "missing %", "e3D complete",
+        "e3D missing", "target", "e3D", "rotation error (deg)",
     ]  # fmt: skip
     return table(header, lines)
 
@@ -73,11 +80,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sequences", nargs="+", default=list(BODY_SEQUENCE_NAMES),
                         choices=BODY_SEQUENCE_NAMES)  # fmt: skip
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
+    parser.add_argument("--noise", nargs="+", type=float, default=[0.0])
     parser.add_argument("--output-dir", type=Path, default=Path("benchmarks/results"))
     arguments = parser.parse_args(argv)
     meta = provenance(argv)
-    rows = [row for name in arguments.sequences for seed in arguments.seeds
-            for row in unit(name, seed)]  # fmt: skip
+    rows = [row for name in arguments.sequences for noise in arguments.noise
+            for seed in arguments.seeds for row in unit(name, seed, noise)]  # fmt: skip
     arguments.output_dir.mkdir(parents=True, exist_ok=True)
     write_json(arguments.output_dir / "body.json", meta, rows=rows)
     body = [
