@@ -29,7 +29,12 @@ from tqdm import tqdm
 from moju_cli.stop_reasons import describe_stop
 from moju_cli.video_commands import check_frame_range, tracking_options
 from moju_core import defaults
-from moju_core.datasets import HARD_SEQUENCE_NAMES, SEQUENCE_NAMES, make_sequence
+from moju_core.datasets import (
+    BODY_SEQUENCE_NAMES,
+    HARD_SEQUENCE_NAMES,
+    SEQUENCE_NAMES,
+    make_sequence,
+)
 from moju_core.errors import MeasurementError
 from moju_core.io import Measurements, read_measurements, read_result, write_measurements
 from moju_core.io import write_result as write_result_file
@@ -643,7 +648,7 @@ def evaluate(result_file: str, truth_file: str, as_json: bool) -> None:
 @click.command("demo")
 @click.option(
     "--sequence",
-    type=click.Choice(SEQUENCE_NAMES + HARD_SEQUENCE_NAMES),
+    type=click.Choice(SEQUENCE_NAMES + HARD_SEQUENCE_NAMES + BODY_SEQUENCE_NAMES),
     default="face1",
     show_default=True,
     help="Synthetic sequence (face1: 10 frames of a face-like surface, +-30 degrees of yaw).",
@@ -705,6 +710,12 @@ def demo(
     """
     if video:
         from moju_cli.video_commands import run_video_demo
+
+        if sequence in BODY_SEQUENCE_NAMES:
+            raise click.UsageError(
+                f"--video renders a textured surface; {sequence} is markers without one: "
+                "choose a face or a sheet, or drop --video"
+            )
 
         run_video_demo(sequence, frames, out_dir, quiet)
         return

@@ -583,6 +583,22 @@ def test_demo_refuses_unusable_noise(tmp_path, solver_must_not_run):
     assert not (tmp_path / "d").exists()
 
 
+def test_demo_runs_the_articulated_body_and_refuses_to_render_it(tmp_path, solver_must_not_run):
+    refused = run(["demo", "--sequence", "body-turn", "--video", "--out", str(tmp_path / "v")])
+    assert_clean_failure(refused, 2, "body-turn is markers")
+    assert not (tmp_path / "v").exists()
+
+
+def test_demo_solves_the_articulated_body(tmp_path):
+    out = tmp_path / "body"
+    arguments = ["demo", "--sequence", "body-osc", "--points", "20", "--frames", "60"]
+    outcome = run([*arguments, "--out", str(out), "-q"])
+    assert outcome.exit_code == 0, outcome.output
+    measurements = read_measurements(out / "input.npz")
+    assert measurements.W.shape == (120, 20) and measurements.faces is None
+    assert len(list((out / "ply").glob("*.ply"))) == 60
+
+
 def test_demo_default_size_is_the_documented_one():
     default = next(p for p in solver_commands.demo.params if p.name == "points").default
     assert default == solver_commands.DEMO_POINTS == 5_000
