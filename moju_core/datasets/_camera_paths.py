@@ -89,23 +89,49 @@ def camera_rotations(
     )
 
 
-def hard_camera(n_frames: int, motion: CameraMotion, rng: np.random.Generator) -> np.ndarray:
-    """Camera path of the hard sequences, full rotations (F, 3, 3); see the constants above.
+def swinging_camera(
+    n_frames: int,
+    motion: CameraMotion,
+    rng: np.random.Generator,
+    *,
+    swing: tuple[float, float, float, float],
+    circle: tuple[float, float, float],
+    spin_axis: int,
+) -> np.ndarray:
+    """An oscillating or circling camera path, full rotations (F, 3, 3).
 
-    ``"osc"``: ``R_f = Rx(pitch_f) Ry(yaw_f)``; ``"turn"``: ``R_f = Rx(tilt_f) Rz(spin_f)``
-    (z is the sheets' rest normal, towards the camera at zero rotation).
+    ``"osc"``: ``R_f = Rx(pitch_f) Ry(yaw_f)`` with ``swing = (yaw amplitude, yaw period,
+    pitch amplitude, pitch period)`` (degrees, frames), random phases. ``"turn"``:
+    ``R_f = Rx(tilt_f) R_axis(spin_f)`` about ``spin_axis`` with ``circle = (degrees per
+    frame, tilt, tilt wobble over the sequence)``, a random start and sense.
     """
     if motion not in CAMERA_MOTIONS:
         raise ValueError(f"camera must be one of {CAMERA_MOTIONS}, got {motion!r}")
     frames = np.arange(n_frames, dtype=np.float64)
     phases = rng.uniform(0.0, 2.0 * np.pi, size=2)
     if motion == "osc":
-        yaw = _OSC_YAW_DEG * np.sin(2.0 * np.pi * frames / _OSC_PERIOD_FRAMES + phases[0])
-        pitch = _OSC_PITCH_DEG * np.sin(2.0 * np.pi * frames / _OSC_PITCH_PERIOD_FRAMES + phases[1])
+        yaw_deg, yaw_period, pitch_deg, pitch_period = swing
+        yaw = yaw_deg * np.sin(2.0 * np.pi * frames / yaw_period + phases[0])
+        pitch = pitch_deg * np.sin(2.0 * np.pi * frames / pitch_period + phases[1])
         return axis_rotations(0, np.radians(pitch)) @ axis_rotations(1, np.radians(yaw))
+    rate, tilt_deg, wobble_deg = circle
     sense = rng.choice([-1.0, 1.0])
-    spin = np.degrees(phases[0]) + sense * _TURN_RATE_DEG * frames
-    tilt = _TURN_TILT_DEG + _TURN_WOBBLE_DEG * np.sin(
-        2.0 * np.pi * frames / max(n_frames - 1, 1) + phases[1]
+    spin = np.degrees(phases[0]) + sense * rate * frames
+    tilt = tilt_deg + wobble_deg * np.sin(2.0 * np.pi * frames / max(n_frames - 1, 1) + phases[1])
+    return axis_rotations(0, np.radians(tilt)) @ axis_rotations(spin_axis, np.radians(spin))
+
+
+def hard_camera(n_frames: int, motion: CameraMotion, rng: np.random.Generator) -> np.ndarray:
+    """Camera path of the hard sequences, full rotations (F, 3, 3); see the constants above.
+
+    ``"osc"``: ``R_f = Rx(pitch_f) Ry(yaw_f)``; ``"turn"``: ``R_f = Rx(tilt_f) Rz(spin_f)``
+    (z is the sheets' rest normal, towards the camera at zero rotation).
+    """
+    return swinging_camera(
+        n_frames,
+        motion,
+        rng,
+        swing=(_OSC_YAW_DEG, _OSC_PERIOD_FRAMES, _OSC_PITCH_DEG, _OSC_PITCH_PERIOD_FRAMES),
+        circle=(_TURN_RATE_DEG, _TURN_TILT_DEG, _TURN_WOBBLE_DEG),
+        spin_axis=2,
     )
-    return axis_rotations(0, np.radians(tilt)) @ axis_rotations(2, np.radians(spin))

@@ -12,7 +12,11 @@ from __future__ import annotations
 import numpy as np
 
 from moju_core.datasets._assembly import check_sizes, finish, streams
-from moju_core.datasets._camera_paths import CAMERA_MOTIONS, CameraMotion, axis_rotations
+from moju_core.datasets._camera_paths import (
+    CameraMotion,
+    axis_rotations,
+    swinging_camera,
+)
 from moju_core.datasets.sequence import Sequence
 
 #: The names :func:`moju_core.datasets.make_sequence` knows for :func:`body_sequence`.
@@ -105,22 +109,6 @@ def _pose(n_frames: int, rng: np.random.Generator) -> tuple[dict, dict]:
     return rotation, position
 
 
-def _camera(n_frames: int, motion: CameraMotion, rng: np.random.Generator) -> np.ndarray:
-    """The camera path, full rotations (F, 3, 3)."""
-    frames = np.arange(n_frames, dtype=np.float64)
-    phases = rng.uniform(0.0, 2.0 * np.pi, size=2)
-    if motion == "osc":
-        yaw = OSC_YAW_DEG * np.sin(2.0 * np.pi * frames / OSC_YAW_PERIOD + phases[0])
-        pitch = OSC_PITCH_DEG * np.sin(2.0 * np.pi * frames / OSC_PITCH_PERIOD + phases[1])
-    else:
-        sense = rng.choice([-1.0, 1.0])
-        yaw = np.degrees(phases[0]) + sense * TURN_RATE_DEG * frames
-        pitch = TURN_TILT_DEG + TURN_WOBBLE_DEG * np.sin(
-            2.0 * np.pi * frames / max(n_frames - 1, 1) + phases[1]
-        )
-    return axis_rotations(0, np.radians(pitch)) @ axis_rotations(1, np.radians(yaw))
-
-
 def body_sequence(
     n_frames: int = 350,
     n_points: int = 41,
@@ -153,8 +141,6 @@ def body_sequence(
         ``faces`` is None (markers, no surface); colours by bone.
     """
     check_sizes(n_frames, n_points)
-    if camera not in CAMERA_MOTIONS:
-        raise ValueError(f"camera must be one of {CAMERA_MOTIONS}, got {camera!r}")
     motion_rng, camera_rng, translation_rng = streams(seed)
     rotation, position = _pose(n_frames, motion_rng)
     bones = marker_bones(n_points)
@@ -168,5 +154,12 @@ def body_sequence(
         shapes[:, j] = position[parent] + rotation[parent] @ local
     palette = np.array([[200, 80, 60], [60, 140, 200], [90, 170, 90], [220, 180, 60]])
     colors = palette[bones % len(palette)].astype(np.uint8)
-    camera_path = _camera(n_frames, camera, camera_rng)
+    camera_path = swinging_camera(
+        n_frames,
+        camera,
+        camera_rng,
+        swing=(OSC_YAW_DEG, OSC_YAW_PERIOD, OSC_PITCH_DEG, OSC_PITCH_PERIOD),
+        circle=(TURN_RATE_DEG, TURN_TILT_DEG, TURN_WOBBLE_DEG),
+        spin_axis=1,
+    )
     return finish(f"body-{camera}", shapes, camera_path, translation_rng, 1.7, None, colors)
