@@ -320,10 +320,8 @@ def _reconstruct(
         report("iterating", iteration, gap, rho)
         return False
 
-    if params.method == "pta":
-        out = _trajectory_basis(tracks, rotations, params, hook, fitted)
-    else:
-        out = admm.run(
+    def loop(exact: bool, held: np.ndarray | None) -> admm.LoopOutput:
+        return admm.run(
             tracks,
             rotations,
             params,
@@ -331,27 +329,23 @@ def _reconstruct(
             hook=hook,
             refine_rotations=estimate.refine,
             observed=fitted,
-            exact_data=exact_data,
-            measured=measured,
+            exact_data=exact,
+            measured=held,
         )
+
+    if params.method == "pta":
+        out = _trajectory_basis(tracks, rotations, params, hook, fitted)
+    else:
+        out = loop(exact_data, measured)
         if measured is not None and _flung(out.shapes, tracks, observed):
             warnings.warn(
-                f"the exact fit of the observed entries threw hidden entries far off the "
+                "the exact fit of the observed entries threw hidden entries far off the "
                 f"object (more than {FLUNG_FACTOR:g} times the largest image distance from "
                 "its centre): solved again with the observed entries fitted softly",
                 RuntimeWarning,
                 stacklevel=3,
             )
-            out = admm.run(
-                tracks,
-                rotations,
-                params,
-                features=features,
-                hook=hook,
-                refine_rotations=estimate.refine,
-                observed=fitted,
-                exact_data=False,
-            )
+            out = loop(False, None)
     timings["iterate"] = time.perf_counter() - tic
 
     report("finishing", out.n_iter)
