@@ -84,7 +84,9 @@ PTA_MAX_CONDITION = 10.0
 #: norm shrinks every deformation it penalises towards the zero-depth start, which is what
 #: flattens large deformations; leaving the leading ones out lets the temporal prior give them
 #: depth, but only where the cameras constrain depth: on the slow-yaw face (k = 2) leaving out
-#: two values instead of one took e3D from 0.022 to 0.069 (800 points, known rotations).
+#: two values instead of one took e3D from 0.022 to 0.069 (800 points, known rotations). The cap
+#: rises to the basis shapes the tracks show where they show more (:func:`shown_basis_shapes`):
+#: a fixed cap of 8 cost face3 more than 5 % on four of twelve seeds.
 MAX_UNSHRUNK_VALUES = 4
 MIN_DEPTH_BASIS = 3
 #: Iterations the S# step shrinks all but the mean shape before it leaves out
@@ -154,26 +156,42 @@ def trajectory_basis_size(rotations: np.ndarray, limit: int | None = None) -> in
     return best
 
 
-def unshrunk_values(rotations: np.ndarray) -> int:
+def unshrunk_values(rotations: np.ndarray, signal_rank: int = 0) -> int:
     """Default number of leading singular values of S# the nuclear norm leaves out (moju, sdg).
 
-    ``min(k, MAX_UNSHRUNK_VALUES)`` when the cameras support a well-conditioned trajectory
-    basis of k >= :data:`MIN_DEPTH_BASIS` cosines (:func:`trajectory_basis_size`: the camera
-    turns enough, and often enough, for the depth of a few smooth deformations to be seen from
-    the side), else 1 (the mean shape only).
+    ``min(k, cap)`` when the cameras support a well-conditioned trajectory basis of
+    k >= :data:`MIN_DEPTH_BASIS` cosines (:func:`trajectory_basis_size`: the camera turns
+    enough, and often enough, for the depth of a few smooth deformations to be seen from the
+    side), else 1 (the mean shape only). The cap is :data:`MAX_UNSHRUNK_VALUES`, or the number
+    of basis shapes the tracks show when that is larger (:func:`shown_basis_shapes`).
 
     Parameters
     ----------
     rotations : ndarray of shape (F, 2, 3)
         Camera rotations the solve starts from.
+    signal_rank : int, default 0
+        Number of singular values of W above the noise
+        (:func:`moju_core.spectrum.significant_rank`); 0: unknown.
 
     Returns
     -------
     int
-        1 to :data:`MAX_UNSHRUNK_VALUES`.
+        1 to ``max(MAX_UNSHRUNK_VALUES, shown_basis_shapes(signal_rank))``.
     """
-    k = trajectory_basis_size(rotations, limit=MAX_UNSHRUNK_VALUES)
+    cap = max(MAX_UNSHRUNK_VALUES, shown_basis_shapes(signal_rank))
+    k = trajectory_basis_size(rotations, limit=cap)
     return k if k >= MIN_DEPTH_BASIS else 1
+
+
+def shown_basis_shapes(signal_rank: int) -> int:
+    """The fewest basis shapes (mean shape included) that explain a W of this rank.
+
+    A basis shape ``B`` (3 x P) adds the rows of ``R_f B`` to W, at most 3 to its rank, so K
+    shapes give rank at most 3K: ``ceil(rank / 3)``. It is a lower bound. A shape that moves
+    the points along one direction only (a sheet's bending) adds 1, so the true count may be
+    up to ``rank - 2``.
+    """
+    return math.ceil(signal_rank / 3)
 
 
 def unshrunk_with_prior(unshrunk: int, smoothness: float) -> int:
@@ -190,6 +208,7 @@ def resolve(
     *,
     rotations: np.ndarray | None = None,
     noise: float = 0.0,
+    signal_rank: int = 0,
 ) -> SolverParams:
     """Fill in every data-derived default of ``params``.
 
@@ -210,6 +229,9 @@ def resolve(
         (:func:`moju_core.spectrum.noise_variance`). Above :data:`EXACT_DATA_NOISE` only the
         mean shape is left unshrunk: unshrunk values keep the noise in their subspace (with
         the paper's noise, lambda_g 0.01-0.055, face3 at 2,000 points lost 1-6 % of e3D).
+    signal_rank : int, default 0
+        Number of singular values of W above the noise, which can raise the cap of
+        ``unshrunk_values`` (:func:`unshrunk_values`); 0: unknown.
 
     Returns
     -------
@@ -259,7 +281,9 @@ def resolve(
             raise ValueError("'moju' and 'sdg' need the rotations to derive unshrunk_values")
         quiet = noise <= EXACT_DATA_NOISE
         unshrunk = (
-            unshrunk_values(rotations) if local_model and quiet else int(bool(free_mean_shape))
+            unshrunk_values(rotations, signal_rank)
+            if local_model and quiet
+            else int(bool(free_mean_shape))
         )
     smoothness = params.smoothness
     if smoothness is None and baseline:

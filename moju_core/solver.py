@@ -252,7 +252,10 @@ def _reconstruct(
     top = lrr.top_singular_value(initial)
     del initial  # (F, 3P): do not hold it through the loop
     derive_unshrunk = params.unshrunk_values is None
-    params = defaults.resolve(params, n_frames, n_points, top, rotations=rotations, noise=noise)
+    signal_rank = signal_basis.shape[1]
+    params = defaults.resolve(
+        params, n_frames, n_points, top, rotations=rotations, noise=noise, signal_rank=signal_rank
+    )
     params = params.model_copy(update={"n_bases": n_bases})
     # Again with the values derived from the data.
     feasibility.check_fit(params, n_frames, n_points, has_rotations=True)
@@ -293,7 +296,7 @@ def _reconstruct(
             centred = tracks.reshape(2 * n_frames, n_points)
             params = params.model_copy(update={"smoothness": fit.smoothness})
             if derive_unshrunk and params.free_mean_shape:
-                unshrunk = defaults.unshrunk_values(rotations)
+                unshrunk = defaults.unshrunk_values(rotations, signal_rank)
                 params = params.model_copy(update={"unshrunk_values": unshrunk})
         signal_fitted = fit is not None
     measured = None

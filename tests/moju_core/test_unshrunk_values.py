@@ -11,6 +11,7 @@ from moju_core import SolverParams, defaults, lrr, reconstruct
 from moju_core.datasets import make_sequence
 from moju_core.loop_state import loop_settings
 from moju_core.metrics import e3d
+from moju_core.spectrum import significant_rank
 
 
 def _camera(yaw_degrees: np.ndarray, pitch_degrees: np.ndarray) -> np.ndarray:
@@ -34,6 +35,41 @@ def test_an_oscillating_camera_leaves_the_leading_deformations_unshrunk() -> Non
     full = defaults.trajectory_basis_size(oscillating)
     assert full >= defaults.MIN_DEPTH_BASIS
     assert defaults.unshrunk_values(oscillating) == min(full, defaults.MAX_UNSHRUNK_VALUES)
+
+
+def test_tracks_with_more_basis_shapes_than_the_cap_leave_as_many_unshrunk() -> None:
+    frames = np.arange(60)
+    oscillating = _camera(
+        35 * np.sin(2 * np.pi * frames / 25), 20 * np.sin(2 * np.pi * frames / 17)
+    )
+    full = defaults.trajectory_basis_size(oscillating)
+    cap = defaults.MAX_UNSHRUNK_VALUES
+    assert full > cap + 2  # the cameras resolve more than the cap
+    assert defaults.unshrunk_values(oscillating, signal_rank=3 * cap) == cap
+    assert defaults.unshrunk_values(oscillating, signal_rank=3 * (cap + 1) + 1) == cap + 2
+    assert defaults.unshrunk_values(oscillating, signal_rank=3 * full + 3) == full
+
+
+@pytest.mark.parametrize("n_shapes", [1, 2, 5, 8])
+def test_the_shown_basis_shapes_of_random_shapes_are_their_number(n_shapes: int) -> None:
+    """K random 3-D basis shapes under random cameras give a W of rank 3K."""
+    rng = np.random.default_rng(n_shapes)
+    n_frames, n_points = 80, 300
+    bases = rng.standard_normal((n_shapes, 3, n_points))
+    weights = rng.standard_normal((n_frames, n_shapes))
+    shapes = np.einsum("fk,kcp->fcp", weights, bases)
+    rotations = Rotation.random(n_frames, random_state=n_shapes).as_matrix()[:, :2, :]
+    W = np.einsum("fjc,fcp->fjp", rotations, shapes).reshape(2 * n_frames, n_points)
+    W -= W.mean(axis=1, keepdims=True)
+    singular = np.linalg.svd(W, compute_uv=False)
+    assert defaults.shown_basis_shapes(significant_rank(singular, W.shape)) == n_shapes
+
+
+def test_a_body_under_an_oscillating_camera_leaves_more_than_the_cap_unshrunk() -> None:
+    """Markers on 16 bones: more basis shapes than the cap, and cameras that resolve them."""
+    data = make_sequence("body-osc", seed=0)
+    result = reconstruct(data.W, SolverParams(), rotations=data.rotations)
+    assert result.params.unshrunk_values > defaults.MAX_UNSHRUNK_VALUES
 
 
 @pytest.mark.parametrize("limit", [1, 2, 3, 4, 6])
