@@ -65,7 +65,10 @@ class Progress:
     ``"initialising"``, ``"iterating"``, ``"finishing"``; a plain string is converted).
     ``gap`` is the ADMM primal gap of Algorithm 1 step 15 (``nan`` before the loop starts).
     ``fraction`` is an estimate in [0, 1] of the work done, ``elapsed`` and ``eta`` are
-    seconds (``eta`` is ``None`` when unknown).
+    seconds (``eta`` is ``None`` when unknown). ``iteration`` counts the iterations of every
+    loop the solve has run: when a masked exact fit is solved again softly, the second loop's
+    count continues from the first's (and may exceed ``max_iter``), and ``fraction`` never
+    goes back.
     """
 
     stage: Stage

@@ -52,6 +52,7 @@ class _Reporter:
         self.loop_start: float | None = None
         self.max_iter = max_iter
         self.expected = max_iter
+        self.reported = 0.0  # the fraction never goes back (a second loop extends expected)
 
     def __call__(
         self, stage: str, iteration: int = 0, gap: float = float("nan"), rho: float = float("nan")
@@ -68,6 +69,7 @@ class _Reporter:
             fraction = 0.05 + 0.9 * done
             if iteration:
                 eta = (now - self.loop_start) / iteration * max(self.expected - iteration, 0)
+        fraction = self.reported = max(fraction, self.reported)
         progress = Progress(
             stage=stage,
             iteration=iteration,
@@ -319,8 +321,11 @@ def _reconstruct(
 
     tic = time.perf_counter()
 
+    # Iterations of loops already run: a second loop's progress continues from the first's.
+    done = 0
+
     def hook(iteration: int, gap: float, rho: float) -> bool:
-        report("iterating", iteration, gap, rho)
+        report("iterating", done + iteration, gap, rho)
         return False
 
     def loop(exact: bool, held: np.ndarray | None) -> admm.LoopOutput:
@@ -348,6 +353,8 @@ def _reconstruct(
                 RuntimeWarning,
                 stacklevel=3,
             )
+            done = out.n_iter
+            report.expected = done + defaults.expected_iterations(params)
             out = loop(False, None)
     timings["iterate"] = time.perf_counter() - tic
 

@@ -1,5 +1,6 @@
 """Missing data in the solver: completion, the masked S-update and PTA, and reconstruct."""
 
+import itertools
 import warnings
 
 import numpy as np
@@ -436,8 +437,18 @@ def test_an_exact_fit_that_throws_lost_tracks_off_the_object_is_solved_again_sof
     image's reach away); the soft fit that replaces it gives 0.068 (complete tracks 0.033)."""
     data = make_sequence("body-osc", seed=2)
     visibility = occlusion_mask(data, band=0.0, lost=0.1, dropout=0.0, seed=2)
+    reports = []
     with pytest.warns(RuntimeWarning, match="threw hidden entries far off the object"):
-        result = reconstruct(_with_nan(data.W, visibility), rotations=data.rotations)
+        result = reconstruct(
+            _with_nan(data.W, visibility),
+            rotations=data.rotations,
+            callback=lambda progress: reports.append(progress) and False,
+        )
+    # The progress of the second loop continues from the first's.
+    iterating = [p for p in reports if p.stage == "iterating"]
+    assert len(iterating) > result.n_iter
+    assert all(b.iteration > a.iteration for a, b in itertools.pairwise(iterating))
+    assert all(b.fraction >= a.fraction for a, b in itertools.pairwise(reports))
     assert result.params.smoothness >= defaults.MIN_DEPTH_PRIOR  # the strong prior stays
     reach = np.linalg.norm(data.shapes, axis=2).max()
     assert np.linalg.norm(result.shapes, axis=2).max() < 2 * reach
