@@ -117,10 +117,12 @@ class SolverParams(BaseModel):
             "Leading singular values of S# left out of the nuclear norm once the loop has run "
             "its first 20 iterations (before then: 1 with free_mean_shape, else 0). Values "
             "left out are not shrunk, so the deformations they carry keep their depth. Unset: "
-            "'moju' and 'sdg' leave out min(k, 4) when the cameras determine a trajectory "
-            "basis of k >= 3 cosines (PTA's well-conditioned size), the smoothness is at "
-            "least 10 and the tracks are free of measurable noise, otherwise only the mean "
-            "shape; 'bmm' follows free_mean_shape. Ignored by 'pta'."
+            "'moju' and 'sdg' leave out min(k, max(4, ceil(r / 3))) when the cameras "
+            "determine a trajectory basis of k >= 3 cosines (PTA's well-conditioned size), "
+            "the smoothness is at least 10 and the tracks are free of measurable noise, "
+            "otherwise only the mean shape; r is the rank of the tracks above the noise, so "
+            "r / 3 the fewest basis shapes that explain them. 'bmm' follows free_mean_shape. "
+            "Ignored by 'pta'."
         ),
     )
     trajectory_bases: int | None = Field(
