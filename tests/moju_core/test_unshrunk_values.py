@@ -20,6 +20,12 @@ def _camera(yaw_degrees: np.ndarray, pitch_degrees: np.ndarray) -> np.ndarray:
     return Rotation.from_euler("yxz", angles, degrees=True).as_matrix()[:, :2, :]
 
 
+def _oscillating_camera() -> np.ndarray:
+    """60 frames swinging +-35 degrees in yaw and +-20 in pitch (periods 25 and 17 frames)."""
+    frames = np.arange(60)
+    return _camera(35 * np.sin(2 * np.pi * frames / 25), 20 * np.sin(2 * np.pi * frames / 17))
+
+
 @pytest.mark.parametrize("name", ["face4", "bumps-turn"])
 def test_a_slow_yaw_or_a_turntable_leaves_only_the_mean_shape_unshrunk(name: str) -> None:
     rotations = make_sequence(name, n_points=20).rotations
@@ -28,20 +34,14 @@ def test_a_slow_yaw_or_a_turntable_leaves_only_the_mean_shape_unshrunk(name: str
 
 
 def test_an_oscillating_camera_leaves_the_leading_deformations_unshrunk() -> None:
-    frames = np.arange(60)
-    oscillating = _camera(
-        35 * np.sin(2 * np.pi * frames / 25), 20 * np.sin(2 * np.pi * frames / 17)
-    )
+    oscillating = _oscillating_camera()
     full = defaults.trajectory_basis_size(oscillating)
     assert full >= defaults.MIN_DEPTH_BASIS
     assert defaults.unshrunk_values(oscillating) == min(full, defaults.MAX_UNSHRUNK_VALUES)
 
 
 def test_tracks_with_more_basis_shapes_than_the_cap_leave_as_many_unshrunk() -> None:
-    frames = np.arange(60)
-    oscillating = _camera(
-        35 * np.sin(2 * np.pi * frames / 25), 20 * np.sin(2 * np.pi * frames / 17)
-    )
+    oscillating = _oscillating_camera()
     full = defaults.trajectory_basis_size(oscillating)
     cap = defaults.MAX_UNSHRUNK_VALUES
     assert full > cap + 2  # the cameras resolve more than the cap
