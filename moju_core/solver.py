@@ -179,11 +179,11 @@ def _reconstruct(
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
         # completion of W (moju_core.missing), with the entries it does not determine filled
         # from the points' neighbours (moju_core.neighbours).
-        model = missing.complete(W, observed)
-        completion_rank, exact_completion = model.rank, model.exact
         # The noise from the fully observed blocks, relative to the completed tracks' mean
         # square; a completion less precise than a measurement of noisy tracks is not data.
         block_noise = missing.observed_noise_variance(W, observed)
+        model = missing.complete(W, observed, noise=block_noise)
+        completion_rank, exact_completion = model.rank, model.exact
         noisy = block_noise is not None and (
             block_noise / normalise(model.fill(W, observed))[1] ** 2 > defaults.EXACT_DATA_NOISE
         )
