@@ -152,6 +152,12 @@ class Diagnostics:
     exact_completion : bool
         Whether W was found exactly of that rank (:func:`moju_core.missing.exact_model`): the
         cameras and the fit then treat the trusted hidden entries as measured.
+    completion_unexplained : float or None
+        With missing data and a completion that is not exact, the held-out error its rank
+        leaves beyond the noise, relative to rank one's
+        (:attr:`moju_core.missing.RankChoice.unexplained`). Above
+        :data:`moju_core.missing.MAX_UNEXPLAINED` (an articulated body's markers) no hidden
+        entry is fitted as data. None otherwise.
     exact_fit : bool
         Whether the loop fitted the tracks exactly (noise-free tracks, or the signal fit's
         projection). It then stops once the shape gap is below
@@ -171,6 +177,7 @@ class Diagnostics:
     signal_fit: bool = False
     completion_rank: int | None = None
     exact_completion: bool = False
+    completion_unexplained: float | None = None
     exact_fit: bool = False
 
     def __post_init__(self) -> None:

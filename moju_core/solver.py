@@ -174,7 +174,7 @@ def _reconstruct(
     # Sizes first, with the messages the service gives at submission (moju_core.feasibility).
     feasibility.check_fit(params, n_frames, n_points, has_rotations=rotations is not None)
     values, fitted, borrowed, exact_entries = None, observed, False, observed
-    completion_rank, exact_completion = None, False
+    completion_rank, exact_completion, unexplained = None, False, None
     if observed is not None:
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
         # completion of W (moju_core.missing), with the entries it does not determine filled
@@ -184,6 +184,7 @@ def _reconstruct(
         block_noise = missing.observed_noise_variance(W, observed)
         model = missing.complete(W, observed, noise=block_noise)
         completion_rank, exact_completion = model.rank, model.exact
+        unexplained = None if model.exact else model.unexplained
         noisy = block_noise is not None and (
             block_noise / normalise(model.fill(W, observed))[1] ** 2 > defaults.EXACT_DATA_NOISE
         )
@@ -392,6 +393,7 @@ def _reconstruct(
             trajectory_basis=out.trajectory_basis,
             completion_rank=completion_rank,
             exact_completion=exact_completion,
+            completion_unexplained=unexplained,
             exact_fit=out.exact_fit,
         ),
     )

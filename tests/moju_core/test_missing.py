@@ -569,6 +569,7 @@ def test_noisy_tracks_get_no_exact_model_and_the_rank_chosen_by_held_out_error(s
     result = reconstruct(_with_nan(W, visibility), SolverParams(max_iter=1, smoothness=0.0))
     assert not result.diagnostics.exact_completion
     assert result.diagnostics.completion_rank == model.rank
+    assert 0.0 <= result.diagnostics.completion_unexplained <= missing.MAX_UNEXPLAINED
 
 
 def test_an_exact_model_is_refused_when_alternating_least_squares_stalls(monkeypatch):
@@ -608,6 +609,7 @@ def test_an_exactly_low_rank_face_with_missing_data_is_solved_as_if_complete():
     result = reconstruct(_with_nan(data.W, visibility), params)
     complete = reconstruct(data.W, params)
     assert result.diagnostics.exact_completion and result.diagnostics.completion_rank >= 12
+    assert result.diagnostics.completion_unexplained is None
     assert complete.diagnostics.completion_rank is None
     assert rotation_error_deg(result.rotations, data.rotations) < 0.1
     errors = [e3d(r.shapes, data.shapes) for r in (result, complete)]
