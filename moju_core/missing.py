@@ -130,10 +130,11 @@ TRUSTED_LEVERAGE = 1000.0
 #: A completion that is not exact is trusted at no hidden entry when the rank it generalises
 #: best at leaves more than this of the held-out error of rank one (beyond the noise:
 #: :attr:`RankChoice.unexplained`): its values there would carry the deformation it misses
-#: into the loop as data. On the closing occlusion (seeds 0-3, noise-free and at 1 % and 3 %
-#: noise) the faces, face4's 41 markers and the sheets left at most 0.03; an articulated
-#: body's 41 markers (`body-osc`, `body-turn`) 0.07-0.41 at ranks 2-6, where trusting the
-#: completion raised e3D by up to 66 % (body-osc seed 1: 0.051 against 0.085).
+#: into the loop as data. Under the closing occlusion the faces and sheets left at most 0.03
+#: (seeds 0-3, noise-free and at 1 % and 3 % noise) and face4's 41 markers at most 0.006
+#: (seeds 0-27); an articulated body's 41 markers (`body-osc`, `body-turn`, ranks 2-6) left
+#: 0.07-0.22 on seeds 0-3, where trusting the completion raised e3D by up to 66 % (body-osc
+#: seed 1: 0.085 against 0.051), and 0.024-0.33 on seeds 20-31 (4 of 24 below 0.05).
 MAX_UNEXPLAINED = 0.05
 #: A point seen in at least this fraction of the frames is well seen: its column of the model
 #: is fitted on as many frames as it predicts. The camera step uses these points
@@ -346,8 +347,8 @@ class RankChoice:
         The held-out error at ``rank`` over rank one's, each less the noise variance of the
         held-out entries (runs and single entries alike); 0 when nothing was held out. Small
         where the tracks are close to low rank (faces and sheets, noise-free and at 1-3 %
-        noise: at most 0.03), large where the rank that generalises leaves most of the
-        deformation out (an articulated body's markers: 0.07-0.41).
+        noise: at most 0.03), large where the rank that generalises leaves much of the
+        deformation out (an articulated body's markers: mostly 0.07-0.41).
     """
 
     rank: int
@@ -622,8 +623,9 @@ def trusted_entries(model: LowRank, visibility: np.ndarray, *, noisy: bool = Fal
     """The observed entries and the hidden ones the model predicts well enough to use as data.
 
     A hidden entry is trusted when its :meth:`LowRank.leverage` is at most
-    :data:`TRUSTED_LEVERAGE`; a point seen in a few frames only is not. None is when the model
-    leaves more than :data:`MAX_UNEXPLAINED` of the held-out error unexplained. Of noisy tracks
+    :data:`TRUSTED_LEVERAGE`; a point seen in a few frames only is not. No hidden entry is
+    when a model that is not exact leaves more than :data:`MAX_UNEXPLAINED` of the held-out
+    error unexplained (:attr:`LowRank.unexplained`). Of noisy tracks
     (``noisy``), only where its prediction is also as precise as a measurement (the second
     of :meth:`LowRank.variance_factors` at most 1): a less precise completion fitted as data
     adds more noise than the measurements carry. Noise-free tracks have no such bound (the
