@@ -348,7 +348,7 @@ class RankChoice:
         held-out entries (runs and single entries alike); 0 when nothing was held out. Small
         where the tracks are close to low rank (faces and sheets, noise-free and at 1-3 %
         noise: at most 0.03), large where the rank that generalises leaves much of the
-        deformation out (an articulated body's markers: mostly 0.07-0.41).
+        deformation out (an articulated body's markers: mostly 0.07-0.33).
     """
 
     rank: int
