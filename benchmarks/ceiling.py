@@ -16,11 +16,19 @@ from __future__ import annotations
 
 import argparse
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from harness import RESULTS, mean, provenance, solve, table, write_json, write_markdown
+from harness import (
+    RESULTS,
+    mean,
+    parallel_map,
+    provenance,
+    solve,
+    table,
+    write_json,
+    write_markdown,
+)
 
 from moju_core.datasets import HARD_SEQUENCE_NAMES, make_sequence
 from moju_core.metrics import e3d, rigid_approximation
@@ -80,8 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         for name in args.sequences
         for seed in args.seeds
     ]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        rows = list(pool.map(run_unit, *zip(*units, strict=True)))
+    rows = parallel_map(run_unit, units, args.jobs)
     args.output_dir.mkdir(parents=True, exist_ok=True)
     write_json(args.output_dir / "ceiling.json", meta, rows=rows)
     header = ["sequence", "seeds", "half best rigid", "moju (default)", "best of grid", "pta"]

@@ -18,7 +18,8 @@ import shlex
 import sys
 import time
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -142,6 +143,12 @@ def solve(
         row["beta2"] = result.params.beta2
         row["scale"] = result.scale
     return row
+
+
+def parallel_map(function: Callable[..., Any], units: Sequence[tuple], jobs: int) -> list[Any]:
+    """``[function(*unit) for unit in units]`` in ``jobs`` processes, in the order of units."""
+    with ProcessPoolExecutor(jobs) as pool:
+        return list(pool.map(function, *zip(*units, strict=True)))
 
 
 def peak_memory_mb() -> float:

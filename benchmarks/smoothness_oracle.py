@@ -15,12 +15,20 @@ from __future__ import annotations
 
 import argparse
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from hard import FACE_NAMES as FACES
-from harness import RESULTS, mean, provenance, solve, table, write_json, write_markdown
+from harness import (
+    RESULTS,
+    mean,
+    parallel_map,
+    provenance,
+    solve,
+    table,
+    write_json,
+    write_markdown,
+)
 from threadpoolctl import threadpool_limits
 
 from moju_core.datasets import HARD_SEQUENCE_NAMES, make_sequence
@@ -86,8 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         for seed in args.seeds
         for source in args.rotations
     ]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        rows = list(pool.map(run_unit, *zip(*units, strict=True)))
+    rows = parallel_map(run_unit, units, args.jobs)
     args.output_dir.mkdir(parents=True, exist_ok=True)
     write_json(args.output_dir / "smoothness_oracle.json", meta, rows=rows)
     header = ["sequence", "seed", "rotations", "chosen", "auto"]

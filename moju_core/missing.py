@@ -374,17 +374,18 @@ def choose_rank(W: np.ndarray, visibility: np.ndarray, noise: float = 0.0) -> Ra
     # Split the held-out entries into the runs and the single entries for equal weights.
     in_run = held & (np.roll(held, 1, axis=0) | np.roll(held, -1, axis=0))
     groups = [m for m in (expand_mask(in_run), expand_mask(held & ~in_run)) if m.any()]
-    errors: dict[int, list[float]] = {}
-    best, worse = 1, 0
+    errors: dict[int, list[float]] = {}  # per rank: the runs' and the single entries'
+    best, best_error, worse = 1, np.inf, 0
     for rank in CANDIDATE_RANKS:
         if 2 * rank >= min(W.shape):
             break
         model = complete_at_rank(W, training, rank).values()
         residual = (model - W) ** 2
         errors[rank] = [float(np.mean(residual[m])) for m in groups]
-        if sum(errors[rank]) < sum(errors[best]) or rank == 1:
-            best, worse = rank, 0
-        elif sum(errors[rank]) > 2 * sum(errors[best]):
+        error = sum(errors[rank])
+        if error < best_error:
+            best, best_error, worse = rank, error, 0
+        elif error > 2 * best_error:
             worse += 1
             if worse == OVERFIT_PATIENCE:
                 break  # overfitting grows with the rank
@@ -631,7 +632,7 @@ def trusted_entries(model: LowRank, visibility: np.ndarray, *, noisy: bool = Fal
     adds more noise than the measurements carry. Noise-free tracks have no such bound (the
     model's error there is not noise; see :data:`TRUSTED_LEVERAGE`).
     """
-    if not model.exact and model.unexplained > MAX_UNEXPLAINED:
+    if model.unexplained > MAX_UNEXPLAINED:  # 0 for an exact model
         return visibility.copy()
     leverage, variance = model.variance_factors(visibility)
     trusted = leverage <= TRUSTED_LEVERAGE
