@@ -217,12 +217,12 @@ def _reconstruct(
     exact_data = noise <= defaults.EXACT_DATA_NOISE
     if observed is not None and params.rotations != "known":
         # An exact fit trusts the cameras. Those estimated from an exact model are as good as
-        # from complete tracks; from another completion they are 1-2 degrees off, and the
-        # hidden entries are then fitted exactly only where every one is trusted and none
-        # borrowed (then as data): with the observed entries fitted exactly and the hidden
-        # ones softly, face3 (combined occlusion, seeds 2 / 3) went from 0.0215 / 0.0170 to
-        # 0.109 / diverged (docs/solver.md, "Missing data").
-        exact_data = exact_data and (exact_completion or (fitted is None and not borrowed))
+        # from complete tracks; from another completion they are degrees off (face4's 41
+        # markers: 2.7-5.8), and an exact fit puts that error into the depths even where
+        # every hidden entry is trusted (e3D 0.11-0.33 against 0.024-0.072 soft), as it did
+        # with only the observed entries fitted exactly (face3, combined occlusion, seeds
+        # 2 / 3: 0.0215 / 0.0170 -> 0.109 / diverged; docs/solver.md, "Missing data").
+        exact_data = exact_data and exact_completion
     if params.rotations == "known":
         estimate = cameras.CameraEstimate(rotations, "known")
     else:
