@@ -5,6 +5,7 @@ of alternating fresh processes.
     python benchmarks/side_by_side.py --base HEAD~3 --rotations estimated --repeats 3
     python benchmarks/side_by_side.py --base HEAD~1 --noise 0.01 0.03 --points 2000
     python benchmarks/side_by_side.py --base HEAD~1 --noise 0.02 --occlusion combined dropout-0.3
+    python benchmarks/side_by_side.py --base HEAD~1 --sequences face4 --points 41 --frames 350
 
 ``--base`` is any git revision of this repository; it is checked out into a temporary
 worktree, and every solve runs once per repeat in a fresh process of each version, the two
@@ -37,7 +38,9 @@ DEFAULT_POINTS = 10_000
 OCCLUSIONS: dict[str, dict[str, float] | None] = {
     "none": None,
     "combined": {"band": 0.2, "lost": 0.1, "dropout": 0.02},
+    "dropout-0.1": {"band": 0.0, "lost": 0.0, "dropout": 0.1},
     "dropout-0.3": {"band": 0.0, "lost": 0.0, "dropout": 0.3},
+    "band-0.3": {"band": 0.3, "lost": 0.15, "dropout": 0.0},
 }
 
 SOLVE = r"""
@@ -48,8 +51,8 @@ from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.metrics import evaluate
 from moju_core.validation import with_missing
 name, seed, n_points, source = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
-noise, hide = float(sys.argv[5]), json.loads(sys.argv[6])
-data = make_sequence(name, n_points=n_points, seed=seed, noise=noise)
+noise, hide, n_frames = float(sys.argv[5]), json.loads(sys.argv[6]), json.loads(sys.argv[7])
+data = make_sequence(name, n_points=n_points, n_frames=n_frames, seed=seed, noise=noise)
 known = source == "known"
 params = SolverParams(seed=seed, **({"rotations": "known"} if known else {}))
 W, visibility = data.W, None
@@ -77,11 +80,13 @@ def solve_in(
     source: str,
     noise: float,
     occlusion: str = "none",
+    n_frames: int | None = None,
 ) -> dict[str, Any]:
     """One solve in a fresh interpreter that imports ``moju_core`` from ``tree``."""
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
     hide = json.dumps(OCCLUSIONS[occlusion])
     args = [sys.executable, "-c", SOLVE, name, str(seed), str(n_points), source, str(noise), hide]
+    args.append(json.dumps(n_frames))
     done = subprocess.run(args, cwd=tree, env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"{name} seed {seed} in {tree} failed:\n{done.stderr[-2000:]}")
@@ -97,17 +102,19 @@ def compare(
     noise: float = 0.0,
     n_points: int | None = None,
     occlusion: str = "none",
+    n_frames: int | None = None,
 ) -> dict[str, Any]:
     """Alternating solves of the base and of this checkout; the row of one comparison."""
     n_points = n_points or POINTS.get(name, DEFAULT_POINTS)
     runs: dict[str, list[dict[str, Any]]] = {"base": [], "new": []}
-    case = (name, seed, n_points, source, noise, occlusion)
+    case = (name, seed, n_points, source, noise, occlusion, n_frames)
     for _ in range(repeats):
         runs["base"].append(solve_in(base, *case))
         runs["new"].append(solve_in(ROOT, *case))
     row: dict[str, Any] = {"sequence": name, "seed": seed, "rotations": source, "noise": noise}
     row["occlusion"] = occlusion
     row["n_points"] = n_points
+    row["n_frames"] = n_frames
     for label, results in runs.items():
         first = results[0]
         row[label] = {**first, "seconds": statistics.median(r["seconds"] for r in results)}
@@ -137,6 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--noise", nargs="+", type=float, default=[0.0], help="lambda_g levels")
     parser.add_argument("--points", type=int, default=None, help="points (default: per sequence)")
+    parser.add_argument("--frames", type=int, default=None, help="frames (default: per sequence)")
     parser.add_argument("--occlusion", nargs="+", choices=sorted(OCCLUSIONS), default=["none"])
     parser.add_argument("--output-dir", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
@@ -150,7 +158,17 @@ def main(argv: list[str] | None = None) -> int:
         )
         try:
             rows = [
-                compare(base, name, seed, source, args.repeats, noise, args.points, occlusion)
+                compare(
+                    base,
+                    name,
+                    seed,
+                    source,
+                    args.repeats,
+                    noise,
+                    args.points,
+                    occlusion,
+                    args.frames,
+                )
                 for name in args.sequences
                 for noise in args.noise
                 for occlusion in args.occlusion
