@@ -122,7 +122,8 @@ class Diagnostics:
         ``params.n_groups`` when a regrouping merged groups.
     rotation_source : {"known", "intersection", "windowed", "rigid"}
         Where the rotations came from: supplied, or the estimator that produced them (what
-        ``rotations="auto"`` chose).
+        ``rotations="auto"`` chose); ``"rigid"`` also when the intersection method fell back
+        to the rigid rotations.
     rotation_window : int or None
         Frames per window of the windowed estimate, when it was computed; else None.
     rotations_refined : bool

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from moju_core.cameras.bases import check_measurements, choose_n_bases
-from moju_core.cameras.intersection import intersection_rotations
+from moju_core.cameras.intersection import intersection_estimate
 from moju_core.cameras.rigid import rigid_rotations
 from moju_core.cameras.windowed import (
     RIGIDITY_WINDOW,
@@ -51,7 +51,8 @@ class CameraEstimate:
 
     rotations : ndarray of shape (F, 2, 3)
     source : {"known", "intersection", "windowed", "rigid"}
-        Where the rotations come from (:data:`moju_core.result.RotationSource`).
+        Where the rotations come from (:data:`moju_core.result.RotationSource`); ``"rigid"``
+        also when the intersection method fell back to the rigid rotations.
     n_bases : int or None
         Shape bases of the intersection method, when it ran.
     window : int or None
@@ -111,13 +112,17 @@ def estimate_cameras(
     if n_bases is None:
         n_bases = choose_n_bases(W, singular=decomposition.singular)
     if method == "intersection" or W.shape[0] < 2 * RIGIDITY_WINDOW:
-        intersection = intersection_rotations(W, n_bases, seed=seed, decomposition=decomposition)
-        return CameraEstimate(intersection, "intersection", n_bases=n_bases)
+        intersection, rigid = intersection_estimate(
+            W, n_bases, seed=seed, decomposition=decomposition
+        )
+        return CameraEstimate(intersection, _source(rigid), n_bases=n_bases)
     # The intersection method's warnings (e.g. that no shape basis fits) matter only if its
     # rotations are kept.
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        intersection = intersection_rotations(W, n_bases, seed=seed, decomposition=decomposition)
+        intersection, fell_back = intersection_estimate(
+            W, n_bases, seed=seed, decomposition=decomposition
+        )
     gram = RowGram(W, max(WINDOW_LENGTHS))
     rigid = rigid_rotations(W)
     windowed, window, windowed_rigidity = best_windowed_rotations(gram, rigid)
@@ -134,4 +139,9 @@ def estimate_cameras(
         )
     for warning in caught:
         warnings.warn(warning.message, warning.category, stacklevel=2)
-    return CameraEstimate(intersection, "intersection", n_bases=n_bases, rigidity=excess)
+    return CameraEstimate(intersection, _source(fell_back), n_bases=n_bases, rigidity=excess)
+
+
+def _source(rigid: bool) -> RotationSource:
+    """What the intersection method's rotations are: its own, or its rigid fallback."""
+    return "rigid" if rigid else "intersection"

@@ -37,7 +37,7 @@ from moju_core.cameras.triples import fit_frames, fit_triples, rotations_from_tr
 from moju_core.errors import MeasurementError
 from moju_core.spectrum import RANK_FLOOR, Spectrum, significant_rank, spectrum
 
-__all__ = ["intersection_rotations"]
+__all__ = ["intersection_estimate", "intersection_rotations"]
 
 # Dai's trace relaxation only provides starting points (the joint fit then converges to
 # rounding level), so a moderate ADMM tolerance is enough: 1e-4 .. 1e-8 gave the same final
@@ -295,8 +295,8 @@ def _intersection_with(
 
 def _intersection_from_spectrum(
     W: np.ndarray, spectrum: Spectrum, n_bases: int, seed: int
-) -> np.ndarray:
-    """Body of :func:`intersection_rotations` for a validated W and its spectrum."""
+) -> tuple[np.ndarray, bool]:
+    """Body of :func:`intersection_estimate` for a validated W and its spectrum."""
     s = spectrum.singular
     if s[0] <= 0.0:
         raise MeasurementError("W is zero after centring: the points do not move in the image")
@@ -331,14 +331,36 @@ def _intersection_from_spectrum(
     for k in range(n_bases, 1, -1):
         rotations, failure = _intersection_with(W, spectrum, k, seed)
         if failure is None:
-            return rotations
+            return rotations, False
         fallback = f"n_bases={k - 1}" if k > 2 else "rigid (Tomasi-Kanade) rotations"
         warnings.warn(
             f"intersection rotations with n_bases={k} failed: {failure}; trying {fallback}",
             RuntimeWarning,
             stacklevel=3,
         )
-    return rigid_from_spectrum(spectrum)
+    return rigid_from_spectrum(spectrum), True
+
+
+def intersection_estimate(
+    W: np.ndarray, n_bases: int, *, seed: int = 0, decomposition: Spectrum | None = None
+) -> tuple[np.ndarray, bool]:
+    """:func:`intersection_rotations`, and whether they are the rigid (Tomasi-Kanade) rotations.
+
+    The method falls back to the rigid rotations when W supports one shape basis only or
+    when the relaxation stays degenerate down to two bases; the camera step then reports
+    them as ``"rigid"``.
+
+    Returns
+    -------
+    rotations : ndarray of shape (F, 2, 3), float64
+    rigid : bool
+        True when the rotations are :func:`moju_core.cameras.rigid.rigid_rotations` of W.
+    """
+    W = check_measurements(W)
+    check_n_bases(n_bases, W.shape[0] // 2, W.shape[1])
+    if decomposition is None:
+        decomposition = spectrum(W)
+    return _intersection_from_spectrum(W, decomposition, int(n_bases), seed)
 
 
 def intersection_rotations(
@@ -419,8 +441,4 @@ def intersection_rotations(
     ValueError
         If ``n_bases`` is not a positive integer.
     """
-    W = check_measurements(W)
-    check_n_bases(n_bases, W.shape[0] // 2, W.shape[1])
-    if decomposition is None:
-        decomposition = spectrum(W)
-    return _intersection_from_spectrum(W, decomposition, int(n_bases), seed)
+    return intersection_estimate(W, n_bases, seed=seed, decomposition=decomposition)[0]

@@ -59,3 +59,16 @@ def test_named_methods_and_the_rigid_one():
     assert intersection.source == "intersection" and intersection.n_bases == 2
     with pytest.raises(ValueError, match="unknown rotation method 'known'"):
         estimate_cameras(W, "known")
+
+
+def test_the_intersection_method_that_falls_back_to_rigid_rotations_says_so():
+    """A rigid object supports one shape basis: the intersection method returns the
+    Tomasi-Kanade rotations, and the estimate names them."""
+    W, _ = _centred("paper", n_points=500)
+    rigid = rigid_rotations(W)
+    shapes = np.linalg.lstsq(rigid.reshape(-1, 3), W, rcond=None)[0]  # one 3-D shape
+    W_rigid = rigid.reshape(-1, 3) @ shapes
+    with pytest.warns(RuntimeWarning, match="exceeds what W supports"):
+        estimate = estimate_cameras(W_rigid, "intersection", n_bases=2)
+    assert estimate.source == "rigid"
+    assert_allclose(estimate.rotations, rigid_rotations(W_rigid))
