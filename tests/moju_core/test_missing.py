@@ -156,12 +156,7 @@ def test_als_recovers_an_exact_low_rank_w_with_its_translation_from_its_observed
     assert np.array_equal(filled[seen], W[seen])
     assert_allclose(model.centroid(), W.mean(axis=1), atol=1e-3 * np.abs(W).max())
     # The EM warm start alone (no ALS sweep) is further from the truth.
-    sweeps = missing.ALS_SWEEPS
-    try:
-        missing.ALS_SWEEPS = 0
-        em = missing.complete_at_rank(garbage, visibility, 4)
-    finally:
-        missing.ALS_SWEEPS = sweeps
+    em = missing.complete_at_rank(garbage, visibility, 4, als_sweeps=0)
     hidden = ~seen
     assert np.abs(model.values() - W)[hidden].max() < np.abs(em.values() - W)[hidden].max()
 
@@ -269,6 +264,21 @@ def test_cameras_estimated_from_a_completion_that_is_not_exact_keep_the_soft_dat
     assert result.diagnostics.rotation_source != "known"
     assert not result.exact_fit
     assert e3d(result.shapes, data.shapes) < 0.05
+
+
+def test_the_completion_fits_its_observed_entries_to_the_noise():
+    """The cloth at noise 0.0005 (seed 32): the short fit of the chosen rank stops at 50 times
+    the noise variance on the observed entries; the completion keeps the longer fit, which
+    reaches it."""
+    data = make_sequence("cloth", n_points=1000, noise=0.0005, seed=32)
+    visibility = occlusion_mask(data, band=0.2, lost=0.1, dropout=0.02, seed=32)
+    W = np.where(missing.expand_mask(visibility), data.W, 0.0)
+    noise = missing.observed_noise_variance(W, visibility)
+    model = missing.complete(W, visibility, noise=noise)
+    assert not model.exact
+    short = missing.complete_at_rank(W, visibility, model.rank)
+    assert missing.observed_misfit(short, W, visibility) > 10 * noise
+    assert missing.observed_misfit(model, W, visibility) < 2 * noise
 
 
 def test_leverage_is_about_one_over_the_observed_fraction_and_large_for_a_point_seen_early_only():
@@ -491,10 +501,16 @@ def test_noise_free_tracks_with_hidden_entries_are_fitted_exactly_where_observed
     assert e3d(result.shapes, data.shapes) < 0.014
 
 
-def test_an_exact_fit_that_throws_lost_tracks_off_the_object_is_solved_again_softly():
-    """Markers of the articulated body, 10 % of the tracks lost from a random frame on: the
-    masked exact fit's loop diverged on this seed (e3D 2.7e6, a lost marker 1e8 times the
-    image's reach away); the soft fit that replaces it gives 0.068 (complete tracks 0.033)."""
+def test_an_exact_fit_that_throws_lost_tracks_off_the_object_is_solved_again_softly(
+    monkeypatch,
+):
+    """Markers of the articulated body, 10 % of the tracks lost from a random frame on: with
+    the completion's short fit alone, the masked exact fit's loop diverged on this seed (e3D
+    2.7e6, a lost marker 1e8 times the image's reach away); the soft fit that replaces it
+    gives 0.068 (complete tracks 0.033). The completion's second fit (0.052, not flung) is
+    switched off here to keep the case."""
+    monkeypatch.setattr(missing, "LONG_EM_SWEEPS", missing.COMPLETION_SWEEPS)
+    monkeypatch.setattr(missing, "LONG_ALS_SWEEPS", missing.ALS_SWEEPS)
     data = make_sequence("body-osc", seed=2)
     visibility = occlusion_mask(data, band=0.0, lost=0.1, dropout=0.0, seed=2)
     reports = []
