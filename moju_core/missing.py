@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from moju_core import window_subspace
+from moju_core import gaps, window_subspace
 from moju_core.spectrum import RANK_FLOOR, noise_variance, spectrum
 
 #: EM sweeps of the warm start (each cannot increase the misfit on the observed entries).
@@ -166,6 +166,12 @@ class LowRank:
     unexplained : float
         The held-out error of rank r beyond the noise, relative to rank one's
         (:class:`RankChoice`); 0 for an exact model or one not chosen by held-out error.
+    decay : float
+        Decay length (frames) of the gap correction :meth:`fill` applies
+        (:func:`moju_core.gaps.correction`, :attr:`RankChoice.decay`); 0 for none.
+    reach : int
+        Hidden entries at most this many frames from an observed frame of their point are
+        predicted by :meth:`fill` well enough to be used as data (:attr:`RankChoice.reach`).
     """
 
     left: np.ndarray
@@ -173,6 +179,8 @@ class LowRank:
     translation: np.ndarray
     exact: bool = False
     unexplained: float = 0.0
+    decay: float = 0.0
+    reach: int = 0
 
     @property
     def rank(self) -> int:
@@ -183,8 +191,9 @@ class LowRank:
         return self.left @ self.right[:, columns] + self.translation[:, None]
 
     def fill(self, W: np.ndarray, visibility: np.ndarray) -> np.ndarray:
-        """W at the observed entries, the model elsewhere."""
-        return np.where(expand_mask(visibility), W, self.values())
+        """W at the observed entries, the model elsewhere, corrected by each track's residuals
+        at its nearby observed frames (:func:`moju_core.gaps.filled`, :attr:`decay`)."""
+        return gaps.filled(self.values(), W, visibility, self.decay)
 
     def centroid(self) -> np.ndarray:
         """Row means of the model (the image of the object's centroid per frame), (2F,)."""
@@ -320,7 +329,7 @@ def complete(W: np.ndarray, visibility: np.ndarray, noise: float | None = None) 
     gain = observed_misfit(model, W, visibility) - observed_misfit(longer, W, visibility)
     if gain > (noise or 0.0):
         model = longer
-    return replace(model, unexplained=choice.unexplained)
+    return replace(model, unexplained=choice.unexplained, decay=choice.decay, reach=choice.reach)
 
 
 def observed_misfit(model: LowRank, W: np.ndarray, visibility: np.ndarray) -> float:
@@ -364,10 +373,21 @@ class RankChoice:
         where the tracks are close to low rank (faces and sheets, noise-free and at 1-3 %
         noise: at most 0.03), large where the rank that generalises leaves much of the
         deformation out (an articulated body's markers: mostly 0.07-0.33).
+    decay : float
+        The decay length of the gap correction (:data:`moju_core.gaps.DECAYS`) with the
+        smallest held-out error at ``rank``, the groups weighted as for the rank; 0 (no
+        correction) on ties.
+    reach : int
+        The largest distance (frames) to the nearest training frame of the point up to which
+        the held-out entries, with the gap correction, leave at most :data:`MAX_UNEXPLAINED`
+        of rank one's held-out error unexplained, in every band of distances
+        (:data:`REACH_BANDS`); 0 when the nearest band does not.
     """
 
     rank: int
     unexplained: float
+    decay: float = 0.0
+    reach: int = 0
 
 
 def choose_rank(W: np.ndarray, visibility: np.ndarray, noise: float = 0.0) -> RankChoice:
@@ -390,7 +410,7 @@ def choose_rank(W: np.ndarray, visibility: np.ndarray, noise: float = 0.0) -> Ra
     in_run = held & (np.roll(held, 1, axis=0) | np.roll(held, -1, axis=0))
     groups = [m for m in (expand_mask(in_run), expand_mask(held & ~in_run)) if m.any()]
     errors: dict[int, list[float]] = {}  # per rank: the runs' and the single entries'
-    best, best_error, worse = 1, np.inf, 0
+    best, best_error, worse, best_values = 1, np.inf, 0, None
     for rank in CANDIDATE_RANKS:
         if 2 * rank >= min(W.shape):
             break
@@ -399,7 +419,7 @@ def choose_rank(W: np.ndarray, visibility: np.ndarray, noise: float = 0.0) -> Ra
         errors[rank] = [float(np.mean(residual[m])) for m in groups]
         error = sum(errors[rank])
         if error < best_error:
-            best, best_error, worse = rank, error, 0
+            best, best_error, worse, best_values = rank, error, 0, model
         elif error > 2 * best_error:
             worse += 1
             if worse == OVERFIT_PATIENCE:
@@ -411,7 +431,52 @@ def choose_rank(W: np.ndarray, visibility: np.ndarray, noise: float = 0.0) -> Ra
         return sum(max(error - noise, 0.0) for error in errors[rank])
 
     baseline = beyond_noise(1)
-    return RankChoice(best, beyond_noise(best) / baseline if baseline > 0 else 0.0)
+    unexplained = beyond_noise(best) / baseline if baseline > 0 else 0.0
+    decay = _choose_decay(W, training, best_values, groups)
+    filled = best_values + gaps.correction(W, best_values, training, decay)
+    # Per entry, like one group's mean: rank one's error over the groups' average.
+    allowed = MAX_UNEXPLAINED * baseline / len(groups)
+    reach = _reach(W, filled, training, held, noise, allowed)
+    return RankChoice(best, unexplained, decay, reach)
+
+
+#: Bands of distances (frames, inclusive) to the nearest training frame in which
+#: :func:`choose_rank` compares the held-out error for :attr:`RankChoice.reach`, and the fewest
+#: held-out entries a band needs to count.
+REACH_BANDS = ((1, 1), (2, 3), (4, 7), (8, 15), (16, 31), (32, 63), (64, 127))
+REACH_MIN_ENTRIES = 20
+
+
+def _reach(
+    W: np.ndarray,
+    filled: np.ndarray,
+    training: np.ndarray,
+    held: np.ndarray,
+    noise: float,
+    allowed: float,
+) -> int:
+    """:attr:`RankChoice.reach` from the held-out entries' errors of ``filled`` (2F, n)."""
+    distance = gaps.distance_to_observed(training)
+    squared = ((filled - W) ** 2).reshape(training.shape[0], 2, -1).mean(axis=1)
+    reach = 0
+    for low, high in REACH_BANDS:
+        band = held & (distance >= low) & (distance <= high)
+        if band.sum() < REACH_MIN_ENTRIES or np.mean(squared[band]) - noise > allowed:
+            break
+        reach = high
+    return reach
+
+
+def _choose_decay(
+    W: np.ndarray, training: np.ndarray, values: np.ndarray, groups: list[np.ndarray]
+) -> float:
+    """The gap correction's decay length with the smallest held-out error (summed over the
+    groups of held-out entries, (2F, n) masks) of ``values``, a fit on ``training``."""
+    errors = []
+    for decay in gaps.DECAYS:
+        squared = (values + gaps.correction(W, values, training, decay) - W) ** 2
+        errors.append(sum(float(np.mean(squared[m])) for m in groups))
+    return float(gaps.DECAYS[int(np.argmin(errors))])
 
 
 def complete_at_rank(
@@ -652,11 +717,20 @@ def trusted_entries(model: LowRank, visibility: np.ndarray, *, noisy: bool = Fal
     of :meth:`LowRank.variance_factors` at most 1): a less precise completion fitted as data
     adds more noise than the measurements carry. Noise-free tracks have no such bound (the
     model's error there is not noise; see :data:`TRUSTED_LEVERAGE`).
+
+    Where :meth:`LowRank.fill` corrects the model from the tracks (:attr:`LowRank.decay` > 0),
+    the hidden entries of noise-free tracks within :attr:`LowRank.reach` frames of an observed
+    frame of their point are trusted too, whatever the model leaves unexplained or their
+    leverage: the held-out entries at those distances were predicted that well. Of noisy
+    tracks they are not (the correction carries the neighbouring frames' noise).
     """
+    near = visibility.copy()
+    if model.decay > 0 and not noisy:
+        near = gaps.distance_to_observed(visibility) <= model.reach
     if model.unexplained > MAX_UNEXPLAINED:  # 0 for an exact model
-        return visibility.copy()
+        return visibility | near
     leverage, variance = model.variance_factors(visibility)
     trusted = leverage <= TRUSTED_LEVERAGE
     if noisy:
         trusted &= variance <= 1.0
-    return visibility | trusted
+    return visibility | trusted | near

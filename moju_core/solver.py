@@ -15,6 +15,7 @@ from moju_core import (
     clustering,
     defaults,
     feasibility,
+    gaps,
     lrr,
     missing,
     neighbours,
@@ -191,7 +192,9 @@ def _reconstruct(
         reliable = missing.trusted_entries(model, observed, noisy=noisy)
         values, borrowed_points = neighbours.borrow_values(model, W, observed, reliable)
         borrowed = bool(borrowed_points.any())
-        W = np.where(missing.expand_mask(observed), W, values)
+        # Hidden entries near observed frames of their track move towards its interpolation
+        # (moju_core.gaps).
+        W = gaps.filled(values, W, observed, model.decay)
         # The entries the loop fits: the observed ones, the hidden ones the low-rank model
         # predicts well and those of the borrowed points, at their model values. The
         # smoothness trials fit the observed ones only: their rule compares misfits of ~1e-4

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from moju_core import SolverParams, defaults, missing, pta, reconstruct
+from moju_core import SolverParams, defaults, gaps, missing, pta, reconstruct
 from moju_core.cameras import projection
 from moju_core.cameras.refinement import project_to_stiefel
 from moju_core.datasets import make_sequence, occlusion_mask
@@ -242,13 +242,50 @@ def test_the_markers_of_a_body_are_not_completed_as_data_and_those_of_a_face_are
     name, n_frames, trusted
 ):
     """41 markers under the closing occlusion, seed 0: the body's articulation is not of low
-    rank (its completion leaves 0.13 of rank one's held-out error), the face's is (0.002)."""
+    rank (its completion leaves 0.13 of rank one's held-out error), the face's is (0.002).
+    The body's hidden entries next to an observed frame of their track are still used, filled
+    from the track (moju_core.gaps)."""
     data = make_sequence(name, n_points=41, n_frames=n_frames, seed=0)
     visibility = occlusion_mask(data, band=0.2, lost=0.1, dropout=0.02, seed=0)
     W = np.where(missing.expand_mask(visibility), data.W, 0.0)
     model = missing.complete(W, visibility, noise=missing.observed_noise_variance(W, visibility))
     assert (model.unexplained <= missing.MAX_UNEXPLAINED) == trusted
-    assert (missing.trusted_entries(model, visibility) & ~visibility).any() == trusted
+    hidden = missing.trusted_entries(model, visibility) & ~visibility
+    far = gaps.distance_to_observed(visibility) > model.reach
+    assert (hidden & far).any() == trusted
+    assert hidden.any()
+
+
+def test_hidden_entries_near_an_observed_frame_are_trusted_as_far_as_the_held_out_error_allows():
+    """41 markers of a body with 10 % of the entries hidden at random (seed 1): gaps of a few
+    frames are filled from their tracks to a small fraction of the held-out error, and those
+    entries are used as data even where the completion itself is not (here: taken as leaving
+    too much unexplained); not under noise, where the filled values carry the neighbouring
+    frames' noise."""
+    data = make_sequence("body-osc", n_points=41, n_frames=350, seed=1)
+    visibility = occlusion_mask(data, band=0.0, lost=0.0, dropout=0.1, seed=1)
+    W = np.where(missing.expand_mask(visibility), data.W, 0.0)
+    model = missing.complete(W, visibility, noise=missing.observed_noise_variance(W, visibility))
+    assert model.decay > 0 and model.reach >= 3
+    model = replace(model, unexplained=2 * missing.MAX_UNEXPLAINED)
+    trusted = missing.trusted_entries(model, visibility)
+    near = gaps.distance_to_observed(visibility) <= model.reach
+    assert np.array_equal(trusted, visibility | near)
+    assert np.array_equal(missing.trusted_entries(model, visibility, noisy=True), visibility)
+
+
+def test_short_gaps_in_the_markers_of_a_body_cost_next_to_no_accuracy():
+    """The same markers, known cameras: fitted freely the hidden entries raised e3D from 0.0163
+    to 0.0337 (seed 1), filled from their tracks and fitted as data it is 0.0167."""
+    data = make_sequence("body-osc", n_points=41, n_frames=350, seed=1)
+    visibility = occlusion_mask(data, band=0.0, lost=0.0, dropout=0.1, seed=1)
+    params = SolverParams(seed=1, rotations="known")
+    complete = reconstruct(data.W, params, rotations=data.rotations)
+    hidden = reconstruct(
+        _with_nan(data.W, visibility), params, rotations=data.rotations, visibility=visibility
+    )
+    assert hidden.exact_fit
+    assert e3d(hidden.shapes, data.shapes) < 1.1 * e3d(complete.shapes, data.shapes)
 
 
 def test_cameras_estimated_from_a_completion_that_is_not_exact_keep_the_soft_data_term():
