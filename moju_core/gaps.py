@@ -1,27 +1,61 @@
-"""Hidden entries near their track's observed frames: the completion moved towards the track.
+"""Hidden entries near their track's observed frames: the completion corrected by the track.
 
 A low-rank completion (:mod:`moju_core.missing`) predicts a hidden entry from the other points.
 Where the tracks are not of low rank (41 markers of an articulated body) it misses motion that
-the point's own neighbouring frames show, and the error it makes also changes from frame to
-frame with the set of points each frame sees. The track interpolated linearly across the gap
-is then far better close to its ends: 41 markers over 350 frames, 10 % of the entries hidden
-at random, noise-free (seeds 46-47), the median error at the hidden entries goes from 0.056 /
-0.025 of the tracks' RMS to 0.002 / 0.007 on the body, from 0.010 / 0.012 to 0.001 on a
-face. Far from an observed frame the interpolation knows nothing the completion does not, and
-under noise it carries the neighbouring frames' noise.
+the point's own neighbouring frames show. Two corrections use them, each weighted by
+``exp(-d / L)``, d the distance in frames to the nearest observed frame of the point:
 
-So each hidden entry moves from the completion towards the interpolation by ``exp(-d / L)``,
-d the distance to the nearest observed frame of its point, and the decay length L is chosen
-per input by the error at held-out observed entries (:func:`moju_core.missing.choose_rank`);
-L = 0 is the completion alone. Cost O(F P) per call.
+* the track itself interpolated linearly across the gap, in place of the completion. Where
+  the completion's error changes from frame to frame with the set of points each frame
+  sees, this is far better close to the gap's ends: 41 markers over 350 frames, 10 % of the
+  entries hidden at random, noise-free (seeds 46-47), the median error at the hidden
+  entries went from 0.056 / 0.025 of the tracks' RMS to 0.002 / 0.007 on the body, from
+  0.010 / 0.012 to 0.001 on a face. On a fast-moving dense face or sheet it is far worse
+  than the completion (face3 and the paper under the closing occlusion: 0.03-0.26 one
+  frame into a gap, against 0.0-0.012);
+* the completion's residual at the gap's ends, interpolated across it: the completion's
+  motion kept, its offset from the track corrected. On face4's markers under the closing
+  occlusion this is the better one four frames into a gap (0.005 against 0.015).
+
+Beyond a track's first or last observed frame the residual there is held (the track's last
+value held was 2-40 times worse than that, on every sequence measured). Which of the two
+inside gaps, and L, are chosen per input by the error at held-out observed entries
+(:func:`moju_core.missing.choose_rank`); L = 0 is the completion alone. Under noise the
+correction carries the neighbouring frames' noise, and the choice weighs that too.
+Cost O(F P) per call.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-#: Decay lengths (frames) the held-out choice tries; 0 is no correction and wins ties.
+
+@dataclass(frozen=True)
+class GapFill:
+    """How far hidden entries move from the completion (see the module docstring).
+
+    track : float
+        Decay length (frames) of the move to the track interpolated inside a gap; 0: none.
+    residual : float
+        Decay length (frames) of the completion's interpolated or held residual, for what the
+        first move leaves; 0: none.
+    """
+
+    track: float = 0.0
+    residual: float = 0.0
+
+    @property
+    def corrects(self) -> bool:
+        """Whether any hidden entry moves."""
+        return self.track > 0 or self.residual > 0
+
+
+#: Decay lengths (frames) the held-out choice combines; 0 first, so that it wins ties.
 DECAYS = (0.0, 1.0, 3.0, 10.0, 30.0, np.inf)
+#: The corrections the held-out choice tries, in order; the first of equal error wins.
+CANDIDATES = tuple(GapFill(track, residual) for track in DECAYS for residual in DECAYS)
 
 
 def nearest_observed(visibility: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -54,9 +88,9 @@ def distance_to_observed(visibility: np.ndarray) -> np.ndarray:
 
 
 def correction(
-    W: np.ndarray, values: np.ndarray, visibility: np.ndarray, decay: float
+    W: np.ndarray, values: np.ndarray, visibility: np.ndarray, gap: GapFill
 ) -> np.ndarray:
-    """How far each hidden entry moves from the completion towards its track's interpolation.
+    """How far each hidden entry moves from the completion, (2F, P).
 
     Parameters
     ----------
@@ -66,42 +100,55 @@ def correction(
         The completion.
     visibility : ndarray of shape (F, P), bool
         True where observed.
-    decay : float
-        Decay length L in frames (0: no correction; inf: the interpolation wherever the point
-        is seen in some frame).
+    gap : GapFill
 
     Returns
     -------
     ndarray of shape (2F, P)
-        At a hidden entry, ``exp(-d / L) (w - v)``: w the track interpolated linearly between
-        its previous and its next observed frame (the nearer one's value beyond the track's
-        ends), v the completion, d the distance in frames to the nearer observed frame; 0 at
+        ``a (w - v) + (1 - a) b r`` at a hidden entry: v the completion, w the track
+        interpolated linearly between the observed frames on either side (a = 0 before the
+        first or after the last observed frame), r the residual ``W - values`` interpolated
+        the same way (held beyond the ends), ``a = exp(-d / gap.track)``,
+        ``b = exp(-d / gap.residual)`` and d the distance to the nearer observed frame. 0 at
         observed entries and for a point seen in no frame.
     """
     n_frames, n_points = visibility.shape
-    if decay <= 0.0:
+    if not gap.corrects:
         return np.zeros((2 * n_frames, n_points))
-    tracks = W.reshape(n_frames, 2, n_points)
+    shape = (n_frames, 2, n_points)
     previous, following = nearest_observed(visibility)
     frames = np.arange(n_frames)[:, None]
     before, after = previous >= 0, following < n_frames
     to_previous = np.where(before, frames - previous, np.inf)
     to_next = np.where(after, following - frames, np.inf)
-    at_previous = _take_frames(tracks, np.clip(previous, 0, n_frames - 1))
-    at_next = _take_frames(tracks, np.clip(following, 0, n_frames - 1))
-    both = before & after
-    # The next frame's share: by distance within a gap, all of it before the first frame seen.
-    span = np.where(both, np.maximum(to_previous + to_next, 1.0), 1.0)  # 0 where observed
-    share = np.where(both, to_previous / span, np.where(before, 0.0, 1.0))[:, None, :]
-    interpolated = at_previous * (1.0 - share) + at_next * share
+    previous, following = np.clip(previous, 0, n_frames - 1), np.clip(following, 0, n_frames - 1)
+    # The next frame's share: by distance inside a gap, all of it before the first frame seen.
+    inside = before & after
+    span = np.where(inside, np.maximum(to_previous + to_next, 1.0), 1.0)  # 0 where observed
+    share = np.where(inside, to_previous / span, np.where(before, 0.0, 1.0))[:, None, :]
     distance = np.minimum(to_previous, to_next)  # inf for a point seen in no frame
-    if np.isinf(decay):
-        weight = np.isfinite(distance).astype(np.float64)
-    else:
-        weight = np.exp(-distance / decay)
-    weight[visibility] = 0.0
-    out = (interpolated - values.reshape(n_frames, 2, n_points)) * weight[:, None, :]
+    residual = np.where(np.repeat(visibility, 2, axis=0), W - values, 0.0).reshape(shape)
+    out = _take_frames(residual, previous) * (1.0 - share)
+    out += _take_frames(residual, following) * share
+    out *= _weight(distance, gap.residual)[:, None, :]
+    if gap.track > 0:
+        tracks = W.reshape(shape)
+        track = _take_frames(tracks, previous) * (1.0 - share)
+        track += _take_frames(tracks, following) * share
+        track -= values.reshape(shape)
+        moved = np.where(inside, _weight(distance, gap.track), 0.0)[:, None, :]
+        out += moved * (track - out)
+    out[np.broadcast_to(visibility[:, None, :], shape)] = 0.0
     return out.reshape(2 * n_frames, n_points)
+
+
+def _weight(distance: np.ndarray, decay: float) -> np.ndarray:
+    """``exp(-distance / decay)``: 0 everywhere for decay 0, 1 at finite distances for inf."""
+    if decay <= 0.0:
+        return np.zeros_like(distance)
+    if np.isinf(decay):
+        return np.isfinite(distance).astype(np.float64)
+    return np.exp(-distance / decay)
 
 
 def _take_frames(tracks: np.ndarray, frames: np.ndarray) -> np.ndarray:
@@ -109,8 +156,8 @@ def _take_frames(tracks: np.ndarray, frames: np.ndarray) -> np.ndarray:
     return np.take_along_axis(tracks, frames[:, None, :].repeat(2, axis=1), axis=0)
 
 
-def filled(values: np.ndarray, W: np.ndarray, visibility: np.ndarray, decay: float) -> np.ndarray:
+def filled(values: np.ndarray, W: np.ndarray, visibility: np.ndarray, gap: GapFill) -> np.ndarray:
     """W at the observed entries, ``values`` moved by the :func:`correction` at the hidden
     ones, (2F, P)."""
     mask = np.repeat(visibility, 2, axis=0)
-    return np.where(mask, W, values + correction(W, values, visibility, decay))
+    return np.where(mask, W, values + correction(W, values, visibility, gap))

@@ -192,9 +192,8 @@ def _reconstruct(
         reliable = missing.trusted_entries(model, observed, noisy=noisy)
         values, borrowed_points = neighbours.borrow_values(model, W, observed, reliable)
         borrowed = bool(borrowed_points.any())
-        # Hidden entries near observed frames of their track move towards its interpolation
-        # (moju_core.gaps).
-        W = gaps.filled(values, W, observed, model.decay)
+        # Hidden entries near observed frames of their track corrected by it (moju_core.gaps).
+        W = gaps.filled(values, W, observed, model.gap)
         # The entries the loop fits: the observed ones, the hidden ones the low-rank model
         # predicts well and those of the borrowed points, at their model values. The
         # smoothness trials fit the observed ones only: their rule compares misfits of ~1e-4

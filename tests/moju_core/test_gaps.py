@@ -13,15 +13,25 @@ def test_the_nearest_observed_frames_of_each_entry():
     assert following[:, 0].tolist() == [1, 1, 4, 4, 4, 6]
 
 
-def test_the_correction_moves_to_the_interpolated_track_and_the_nearer_value_beyond_the_ends():
+def test_inside_a_gap_the_track_or_the_residual_is_interpolated_beyond_the_ends_the_residual():
     visibility = np.array([[False], [True], [False], [False], [True], [False]])
     W = np.zeros((12, 1))
     W[2:4, 0] = [3.0, -3.0]  # frame 1 (x, y)
     W[8:10, 0] = [6.0, 0.0]  # frame 4
     values = np.full((12, 1), 1.0)
-    out = gaps.correction(W, values, visibility, np.inf).reshape(6, 2)
-    assert np.allclose(out[:, 0], [2.0, 0.0, 3.0, 4.0, 0.0, 5.0])
-    assert np.allclose(out[:, 1], [-4.0, 0.0, -3.0, -2.0, 0.0, -1.0])
+    values[8] = 2.0  # the completion at frame 4 (x)
+    tracks = gaps.correction(W, values, visibility, gaps.GapFill(track=np.inf))
+    residual = gaps.correction(W, values, visibility, gaps.GapFill(residual=np.inf))
+    tracks, residual = tracks.reshape(6, 2), residual.reshape(6, 2)
+    # Frames 2 and 3: the track (3 -> 6) less the completion (1), or the residual (2 -> 4).
+    assert np.allclose(tracks[:, 0], [0.0, 0.0, 3.0, 4.0, 0.0, 0.0])
+    assert np.allclose(residual[:, 0], [2.0, 0.0, 2.0 + 2.0 / 3.0, 2.0 + 4.0 / 3.0, 0.0, 4.0])
+    # y: the track (-3 -> 0) less 1 is the residual (-4 -> -1) interpolated.
+    assert np.allclose(residual[:, 1], [-4.0, 0.0, -3.0, -2.0, 0.0, -1.0])
+    assert np.allclose(tracks[2:4, 1], residual[2:4, 1])
+    both = gaps.GapFill(track=np.inf, residual=np.inf)
+    both = gaps.correction(W, values, visibility, both).reshape(6, 2)
+    assert np.allclose(both[:, 0], [2.0, 0.0, 3.0, 4.0, 0.0, 4.0])
 
 
 def test_the_correction_decays_with_the_distance_to_the_nearer_observed_frame():
@@ -30,9 +40,10 @@ def test_the_correction_decays_with_the_distance_to_the_nearer_observed_frame():
     W = np.zeros((16, 1))
     W[0] = 1.0
     values = np.zeros((16, 1))
-    out = gaps.correction(W, values, visibility, 2.0).reshape(8, 2)[:, 0]
+    out = gaps.correction(W, values, visibility, gaps.GapFill(residual=2.0))
+    out = out.reshape(8, 2)[:, 0]
     assert np.allclose(out[1:], np.exp(-np.arange(1, 8) / 2.0))
-    assert not gaps.correction(W, values, visibility, 0.0).any()
+    assert not gaps.correction(W, values, visibility, gaps.GapFill()).any()
 
 
 def test_the_distance_to_the_nearest_observed_frame():
@@ -43,9 +54,10 @@ def test_the_distance_to_the_nearest_observed_frame():
 
 def test_a_point_seen_in_no_frame_gets_no_correction():
     visibility = np.array([[True, False], [False, False]])
-    out = gaps.correction(np.ones((4, 2)), np.zeros((4, 2)), visibility, np.inf)
-    assert np.all(np.isfinite(out))
-    assert not out[:, 1].any()
+    for gap in gaps.CANDIDATES:
+        out = gaps.correction(np.ones((4, 2)), np.zeros((4, 2)), visibility, gap)
+        assert np.all(np.isfinite(out))
+        assert not out[:, 1].any()
 
 
 def test_filled_keeps_the_measurements_and_ignores_the_hidden_values():
@@ -53,12 +65,13 @@ def test_filled_keeps_the_measurements_and_ignores_the_hidden_values():
     visibility = rng.random((20, 5)) > 0.3
     W = rng.standard_normal((40, 5))
     values = rng.standard_normal((40, 5))
-    out = gaps.filled(values, W, visibility, 3.0)
+    gap = gaps.GapFill(track=3.0, residual=10.0)
+    out = gaps.filled(values, W, visibility, gap)
     mask = np.repeat(visibility, 2, axis=0)
     assert np.array_equal(out[mask], W[mask])
     changed = W.copy()
     changed[~mask] = 1e6
-    assert np.array_equal(gaps.filled(values, changed, visibility, 3.0), out)
+    assert np.array_equal(gaps.filled(values, changed, visibility, gap), out)
 
 
 def _body(noise: float, seed: int):
@@ -78,7 +91,7 @@ def test_noise_free_markers_with_short_gaps_are_filled_from_their_own_tracks():
     # the track's neighbouring frames show.
     data, visibility, W = _body(0.0, 1)
     model = missing.complete(W, visibility)
-    assert model.decay > 0
+    assert model.gap.corrects
     completion = np.where(np.repeat(visibility, 2, axis=0), W, model.values())
     plain = _hidden_error(data, visibility, completion)
     corrected = _hidden_error(data, visibility, model.fill(W, visibility))
@@ -92,4 +105,4 @@ def test_noisy_tracks_of_a_low_rank_face_choose_little_or_no_correction(seed):
     visibility = occlusion_mask(data, band=0.0, lost=0.0, dropout=0.1, seed=seed)
     W = np.nan_to_num(with_missing(data.W, visibility))
     model = missing.complete(W, visibility, noise=missing.observed_noise_variance(W, visibility))
-    assert model.decay <= 1.0
+    assert model.gap.track <= 1.0 and model.gap.residual <= 1.0

@@ -266,7 +266,7 @@ def test_hidden_entries_near_an_observed_frame_are_trusted_as_far_as_the_held_ou
     visibility = occlusion_mask(data, band=0.0, lost=0.0, dropout=0.1, seed=1)
     W = np.where(missing.expand_mask(visibility), data.W, 0.0)
     model = missing.complete(W, visibility, noise=missing.observed_noise_variance(W, visibility))
-    assert model.decay > 0 and model.reach >= 3
+    assert model.gap.corrects and model.reach >= 3
     model = replace(model, unexplained=2 * missing.MAX_UNEXPLAINED)
     trusted = missing.trusted_entries(model, visibility)
     near = gaps.distance_to_observed(visibility) <= model.reach
