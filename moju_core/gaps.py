@@ -87,6 +87,72 @@ def distance_to_observed(visibility: np.ndarray) -> np.ndarray:
     )
 
 
+@dataclass(frozen=True)
+class Pieces:
+    """The parts of :func:`correction` that do not depend on the decays, per row of W.
+
+    track : ndarray of shape (2F, P)
+        ``w - v`` inside a gap, 0 elsewhere.
+    residual : ndarray of shape (2F, P)
+        ``r``, the residual interpolated inside a gap and held beyond a track's ends.
+    distance : ndarray of shape (2F, P)
+        d, frames to the nearest observed frame of the point; inf at observed entries and for
+        a point seen in no frame (no correction there).
+    inside : ndarray of shape (2F, P), bool
+        Between two observed frames of the point.
+    """
+
+    track: np.ndarray
+    residual: np.ndarray
+    distance: np.ndarray
+    inside: np.ndarray
+
+    def correction(self, gap: GapFill) -> np.ndarray:
+        """``a (w - v) + (1 - a) b r`` (see :func:`correction`), of the shape of the pieces."""
+        out = _weight(self.distance, gap.residual) * self.residual
+        if gap.track > 0:
+            moved = np.where(self.inside, _weight(self.distance, gap.track), 0.0)
+            out += moved * (self.track - out)
+        return out
+
+    def at(self, mask: np.ndarray) -> Pieces:
+        """The pieces at the entries of a (2F, P) mask, as 1-d arrays."""
+        return Pieces(self.track[mask], self.residual[mask], self.distance[mask], self.inside[mask])
+
+
+def pieces(W: np.ndarray, values: np.ndarray, visibility: np.ndarray) -> Pieces:
+    """:class:`Pieces` of the completion ``values`` (2F, P) of W (2F, P; read at the observed
+    entries of ``visibility``, (F, P) bool). O(F P)."""
+    n_frames, n_points = visibility.shape
+    shape = (n_frames, 2, n_points)
+    previous, following = nearest_observed(visibility)
+    frames = np.arange(n_frames)[:, None]
+    before, after = previous >= 0, following < n_frames
+    to_previous = np.where(before, frames - previous, np.inf)
+    to_next = np.where(after, following - frames, np.inf)
+    previous, following = np.clip(previous, 0, n_frames - 1), np.clip(following, 0, n_frames - 1)
+    # The next frame's share: by distance inside a gap, all of it before the first frame seen.
+    inside = before & after & ~visibility
+    span = np.where(inside, to_previous + to_next, 1.0)
+    share = np.where(inside, to_previous / span, np.where(before, 0.0, 1.0))[:, None, :]
+    distance = np.where(visibility, np.inf, np.minimum(to_previous, to_next))
+    residual = np.where(np.repeat(visibility, 2, axis=0), W - values, 0.0).reshape(shape)
+    held = _take_frames(residual, previous) * (1.0 - share)
+    held += _take_frames(residual, following) * share
+    tracks = W.reshape(shape)
+    track = _take_frames(tracks, previous) * (1.0 - share)
+    track += _take_frames(tracks, following) * share
+    track -= values.reshape(shape)
+    track *= inside[:, None, :]
+    rows = (2 * n_frames, n_points)
+    return Pieces(
+        track.reshape(rows),
+        held.reshape(rows),
+        np.repeat(distance, 2, axis=0),
+        np.repeat(inside, 2, axis=0),
+    )
+
+
 def correction(
     W: np.ndarray, values: np.ndarray, visibility: np.ndarray, gap: GapFill
 ) -> np.ndarray:
@@ -112,38 +178,14 @@ def correction(
         ``b = exp(-d / gap.residual)`` and d the distance to the nearer observed frame. 0 at
         observed entries and for a point seen in no frame.
     """
-    n_frames, n_points = visibility.shape
     if not gap.corrects:
-        return np.zeros((2 * n_frames, n_points))
-    shape = (n_frames, 2, n_points)
-    previous, following = nearest_observed(visibility)
-    frames = np.arange(n_frames)[:, None]
-    before, after = previous >= 0, following < n_frames
-    to_previous = np.where(before, frames - previous, np.inf)
-    to_next = np.where(after, following - frames, np.inf)
-    previous, following = np.clip(previous, 0, n_frames - 1), np.clip(following, 0, n_frames - 1)
-    # The next frame's share: by distance inside a gap, all of it before the first frame seen.
-    inside = before & after
-    span = np.where(inside, np.maximum(to_previous + to_next, 1.0), 1.0)  # 0 where observed
-    share = np.where(inside, to_previous / span, np.where(before, 0.0, 1.0))[:, None, :]
-    distance = np.minimum(to_previous, to_next)  # inf for a point seen in no frame
-    residual = np.where(np.repeat(visibility, 2, axis=0), W - values, 0.0).reshape(shape)
-    out = _take_frames(residual, previous) * (1.0 - share)
-    out += _take_frames(residual, following) * share
-    out *= _weight(distance, gap.residual)[:, None, :]
-    if gap.track > 0:
-        tracks = W.reshape(shape)
-        track = _take_frames(tracks, previous) * (1.0 - share)
-        track += _take_frames(tracks, following) * share
-        track -= values.reshape(shape)
-        moved = np.where(inside, _weight(distance, gap.track), 0.0)[:, None, :]
-        out += moved * (track - out)
-    out[np.broadcast_to(visibility[:, None, :], shape)] = 0.0
-    return out.reshape(2 * n_frames, n_points)
+        return np.zeros(W.shape)
+    return pieces(W, values, visibility).correction(gap)
 
 
 def _weight(distance: np.ndarray, decay: float) -> np.ndarray:
-    """``exp(-distance / decay)``: 0 everywhere for decay 0, 1 at finite distances for inf."""
+    """``exp(-distance / decay)``: 0 everywhere for decay 0, 1 at finite distances for inf
+    (0 at infinite ones)."""
     if decay <= 0.0:
         return np.zeros_like(distance)
     if np.isinf(decay):
