@@ -106,3 +106,15 @@ def test_noisy_tracks_of_a_low_rank_face_choose_little_or_no_correction(seed):
     W = np.nan_to_num(with_missing(data.W, visibility))
     model = missing.complete(W, visibility, noise=missing.observed_noise_variance(W, visibility))
     assert model.gap.track <= 1.0 and model.gap.residual <= 1.0
+
+
+def test_the_pieces_at_some_entries_give_the_correction_there():
+    rng = np.random.default_rng(3)
+    visibility = rng.random((30, 8)) > 0.4
+    W, values = rng.standard_normal((60, 8)), rng.standard_normal((60, 8))
+    parts = gaps.pieces(W, values, visibility)
+    mask = rng.random((60, 8)) > 0.5
+    for gap in gaps.CANDIDATES:
+        full = gaps.correction(W, values, visibility, gap)
+        assert np.allclose(parts.at(mask).correction(gap), full[mask])
+        assert not full[np.repeat(visibility, 2, axis=0)].any()
