@@ -230,7 +230,10 @@ def _reconstruct(
     else:
         camera_tracks, camera_decomposition = centred, decomposition
         if values is not None:
-            filled = centred if noise > defaults.EXACT_DATA_NOISE else None
+            filled = None
+            if noise > defaults.EXACT_DATA_NOISE:
+                # With the model's values at the hidden entries, not the gap-corrected ones.
+                filled = np.where(missing.expand_mask(observed), W, values) / scale
             camera_tracks, camera_decomposition = _camera_tracks(
                 values, observed, reliable, scale, filled
             )
