@@ -72,19 +72,24 @@ def nearest_observed(visibility: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return previous, following
 
 
-def distance_to_observed(visibility: np.ndarray) -> np.ndarray:
-    """Frames from each entry to the nearest observed frame of its point, (F, P) int.
-
-    0 at observed entries; larger than F for a point seen in no frame.
-    """
-    n_frames = visibility.shape[0]
-    previous, following = nearest_observed(visibility)
+def _distances(previous: np.ndarray, following: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frames from each entry back to the previous and on to the next observed frame of its
+    point (:func:`nearest_observed`), each (F, P) float: 0 at observed entries, inf where
+    there is none."""
+    n_frames = previous.shape[0]
     frames = np.arange(n_frames)[:, None]
-    far = 2 * n_frames + 1
-    return np.minimum(
-        np.where(previous >= 0, frames - previous, far),
-        np.where(following < n_frames, following - frames, far),
+    return (
+        np.where(previous >= 0, frames - previous, np.inf),
+        np.where(following < n_frames, following - frames, np.inf),
     )
+
+
+def distance_to_observed(visibility: np.ndarray) -> np.ndarray:
+    """Frames from each entry to the nearest observed frame of its point, (F, P) float.
+
+    0 at observed entries; inf for a point seen in no frame.
+    """
+    return np.minimum(*_distances(*nearest_observed(visibility)))
 
 
 @dataclass(frozen=True)
@@ -126,10 +131,8 @@ def pieces(W: np.ndarray, values: np.ndarray, visibility: np.ndarray) -> Pieces:
     n_frames, n_points = visibility.shape
     shape = (n_frames, 2, n_points)
     previous, following = nearest_observed(visibility)
-    frames = np.arange(n_frames)[:, None]
+    to_previous, to_next = _distances(previous, following)
     before, after = previous >= 0, following < n_frames
-    to_previous = np.where(before, frames - previous, np.inf)
-    to_next = np.where(after, following - frames, np.inf)
     previous, following = np.clip(previous, 0, n_frames - 1), np.clip(following, 0, n_frames - 1)
     # The next frame's share: by distance inside a gap, all of it before the first frame seen.
     inside = before & after & ~visibility

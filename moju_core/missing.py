@@ -196,8 +196,8 @@ class LowRank:
         return self.left @ self.right[:, columns] + self.translation[:, None]
 
     def fill(self, W: np.ndarray, visibility: np.ndarray) -> np.ndarray:
-        """W at the observed entries, the model elsewhere, corrected by each track's residuals
-        at its nearby observed frames (:func:`moju_core.gaps.filled`, :attr:`gap`)."""
+        """W at the observed entries, the model elsewhere, corrected from each point's track
+        near its observed frames (:func:`moju_core.gaps.filled`, :attr:`gap`)."""
         return gaps.filled(self.values(), W, visibility, self.gap)
 
     def centroid(self) -> np.ndarray:
@@ -446,11 +446,13 @@ def choose_rank(W: np.ndarray, visibility: np.ndarray, noise: float = 0.0) -> Ra
 
     baseline = beyond_noise(1)
     unexplained = beyond_noise(best) / baseline if baseline > 0 else 0.0
-    gap = _choose_gap(W, training, best_values, groups)
-    filled = best_values + gaps.correction(W, best_values, training, gap)
+    rows = expand_mask(held)
+    gap, squared = _choose_gap(W, training, best_values, rows, groups)
+    held_squared = np.zeros(W.shape)
+    held_squared[rows] = squared
     # Per entry, like one group's mean: rank one's error over the groups' average.
     allowed = MAX_UNEXPLAINED * baseline / len(groups)
-    reach = _reach(W, filled, training, held, noise, allowed)
+    reach = _reach(held_squared, training, held, noise, allowed)
     return RankChoice(best, unexplained, gap, reach)
 
 
@@ -467,16 +469,12 @@ REACH_MIN_ENTRIES = 20
 
 
 def _reach(
-    W: np.ndarray,
-    filled: np.ndarray,
-    training: np.ndarray,
-    held: np.ndarray,
-    noise: float,
-    allowed: float,
+    squared: np.ndarray, training: np.ndarray, held: np.ndarray, noise: float, allowed: float
 ) -> int:
-    """:attr:`RankChoice.reach` from the held-out entries' errors of ``filled`` (2F, n)."""
+    """:attr:`RankChoice.reach` from the corrected values' squared errors (2F, n) at the
+    held-out entries (``held``, (F, n) bool)."""
     distance = gaps.distance_to_observed(training)
-    squared = ((filled - W) ** 2).reshape(training.shape[0], 2, -1).mean(axis=1)
+    squared = squared.reshape(training.shape[0], 2, -1).mean(axis=1)
     reach = 0
     for low, high in REACH_BANDS:
         band = held & (distance >= low) & (distance <= high)
@@ -487,14 +485,18 @@ def _reach(
 
 
 def _choose_gap(
-    W: np.ndarray, training: np.ndarray, values: np.ndarray, groups: list[np.ndarray]
-) -> gaps.GapFill:
+    W: np.ndarray,
+    training: np.ndarray,
+    values: np.ndarray,
+    held: np.ndarray,
+    groups: list[np.ndarray],
+) -> tuple[gaps.GapFill, np.ndarray]:
     """The correction from the tracks with the smallest held-out error (summed over the
-    groups of held-out entries, (2F, n) masks) of ``values``, a fit on ``training``; none
-    unless it is lower than the completion's own by :data:`GAP_SIGNIFICANCE` standard errors
-    of the difference (the entries' squared errors paired). O(F n) once, then O(held-out
-    entries) per candidate."""
-    held = np.logical_or.reduce(groups)
+    groups of held-out entries, (2F, n) masks whose union is ``held``) of ``values``, a fit
+    on ``training``; none unless it is lower than the completion's own by
+    :data:`GAP_SIGNIFICANCE` standard errors of the difference (the entries' squared errors
+    paired). Also the corrected values' squared errors at ``held``. O(F n) once, then
+    O(held-out entries) per candidate."""
     parts = gaps.pieces(W, values, training).at(held)
     error = (values - W)[held]
     members = [m[held] for m in groups]
@@ -508,7 +510,9 @@ def _choose_gap(
     gain = plain - best_squared
     mean = sum(float(np.mean(gain[m])) for m in members)
     spread = np.sqrt(sum(float(np.var(gain[m])) / m.sum() for m in members))
-    return best if mean > GAP_SIGNIFICANCE * spread else gaps.GapFill()
+    if mean > GAP_SIGNIFICANCE * spread:
+        return best, best_squared
+    return gaps.GapFill(), plain
 
 
 def complete_at_rank(

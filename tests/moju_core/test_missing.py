@@ -22,6 +22,16 @@ def _with_nan(W, visibility):
     return hidden
 
 
+def _known_camera_solves(data, visibility, seed):
+    """Solves of the complete tracks and of the tracks with hidden entries, true cameras."""
+    params = SolverParams(seed=seed, rotations="known")
+    complete = reconstruct(data.W, params, rotations=data.rotations)
+    hidden = reconstruct(
+        _with_nan(data.W, visibility), params, rotations=data.rotations, visibility=visibility
+    )
+    return complete, hidden
+
+
 @pytest.fixture(scope="module")
 def face():
     return make_sequence("face3", n_points=400, n_frames=40, seed=2)
@@ -279,11 +289,7 @@ def test_short_gaps_in_the_markers_of_a_body_cost_next_to_no_accuracy():
     to 0.0337 (seed 1), filled from their tracks and fitted as data it is 0.0167."""
     data = make_sequence("body-osc", n_points=41, n_frames=350, seed=1)
     visibility = occlusion_mask(data, band=0.0, lost=0.0, dropout=0.1, seed=1)
-    params = SolverParams(seed=1, rotations="known")
-    complete = reconstruct(data.W, params, rotations=data.rotations)
-    hidden = reconstruct(
-        _with_nan(data.W, visibility), params, rotations=data.rotations, visibility=visibility
-    )
+    complete, hidden = _known_camera_solves(data, visibility, seed=1)
     assert hidden.exact_fit
     assert e3d(hidden.shapes, data.shapes) < 1.1 * e3d(complete.shapes, data.shapes)
 
@@ -555,11 +561,7 @@ def test_the_noise_of_markers_hidden_at_random_is_read_from_shorter_blocks():
     assert not missing._block_noise(W, visibility, max(missing.NOISE_WINDOWS))
     noise = missing.observed_noise_variance(W, visibility)
     assert noise is not None and noise < 1e-6 * np.mean(data.W**2)
-    params = SolverParams(seed=3, rotations="known")
-    complete = reconstruct(data.W, params, rotations=data.rotations)
-    hidden = reconstruct(
-        _with_nan(data.W, visibility), params, rotations=data.rotations, visibility=visibility
-    )
+    complete, hidden = _known_camera_solves(data, visibility, seed=3)
     assert hidden.exact_fit
     assert e3d(hidden.shapes, data.shapes) < 1.25 * e3d(complete.shapes, data.shapes)
 
