@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import scipy.linalg
 
 from moju_core import leading_svd
 from moju_core.leading_svd import WarmStart
@@ -103,7 +104,7 @@ def _gram_route(
     """
     m, n = x.shape
     wide = m <= n
-    values, vectors = np.linalg.eigh(x @ x.T if wide else x.T @ x)
+    values, vectors = _leading_eigh(x @ x.T if wide else x.T @ x, tau, keep)
     s = np.sqrt(np.clip(values, 0.0, None))
     shrunk = np.clip(s - tau, 0.0, None)
     if keep > 0:
@@ -119,6 +120,27 @@ def _gram_route(
         return kept * factors, kept.T @ x, s[surviving], nuclear
     # y = [x V_r diag(shrunk / s)] V_r^T; the first factor is U_r diag(shrunk).
     return (x @ kept) * factors, kept.T, np.ones(len(factors)), nuclear
+
+
+def _leading_eigh(gram: np.ndarray, tau: float, keep: int) -> tuple[np.ndarray, np.ndarray]:
+    """The eigenpairs of a PSD Gram matrix (n, n) above ``tau^2``, and at least its ``keep``
+    largest, in ascending order.
+
+    LAPACK's MRRR driver computes only the requested pairs after the tridiagonal reduction:
+    at n = 123 one thread takes 0.34 ms for a few pairs against 0.70 ms for all of them when
+    the matrix has full rank (0.35 against 0.41 ms at rank 5).
+    """
+    n = gram.shape[0]
+    if tau <= 0.0 or n == 0:
+        return np.linalg.eigh(gram)
+    values, vectors = scipy.linalg.eigh(
+        gram, subset_by_value=(tau * tau, np.inf), driver="evr", check_finite=False
+    )
+    if len(values) < min(keep, n):
+        values, vectors = scipy.linalg.eigh(
+            gram, subset_by_index=(n - min(keep, n), n - 1), driver="evr", check_finite=False
+        )
+    return values, vectors
 
 
 def top_singular_value(x: np.ndarray) -> float:
