@@ -66,7 +66,11 @@ _BLOCK_ENTRIES = 2_000_000
 
 
 def borrow_values(
-    model: LowRank, W: np.ndarray, visibility: np.ndarray, reliable: np.ndarray
+    model: LowRank,
+    W: np.ndarray,
+    visibility: np.ndarray,
+    reliable: np.ndarray,
+    noise: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The model's values of W with the unreliable ones taken from the points' neighbours.
 
@@ -80,6 +84,9 @@ def borrow_values(
         True where observed.
     reliable : ndarray of shape (F, P), bool
         The entries the model predicts well (:func:`moju_core.missing.trusted_entries`).
+    noise : float, default 0.0
+        Variance of the noise in an entry of W (:func:`moju_core.missing.observed_noise_variance`):
+        the weights' ridge (:func:`_affine_weights`).
 
     Returns
     -------
@@ -96,7 +103,7 @@ def borrow_values(
     unreliable = ~reliable & ~visibility
     partial = np.flatnonzero(seen & unreliable.any(axis=0))
     if partial.size and reference.size > 1:
-        combined = _combine(model, values, W, visibility, partial, reference, unreliable)
+        combined = _combine(model, values, W, visibility, partial, reference, noise, unreliable)
         rows = expand_mask(unreliable[:, partial])
         block = values[:, partial]
         block[rows] = combined[rows]
@@ -104,7 +111,7 @@ def borrow_values(
     lost = np.flatnonzero(~seen & unreliable.any(axis=0))
     borrowed = np.zeros(W.shape[1], dtype=bool)
     if lost.size and reference.size:
-        values[:, lost] = _combine(model, values, W, visibility, lost, reference)
+        values[:, lost] = _combine(model, values, W, visibility, lost, reference, noise)
         borrowed[lost] = True
     return values, borrowed
 
@@ -116,6 +123,7 @@ def _combine(
     visibility: np.ndarray,
     points: np.ndarray,
     reference: np.ndarray,
+    noise: float,
     unreliable: np.ndarray | None = None,
 ) -> np.ndarray:
     """Each point's affine combination of its neighbours' ``values``, (2F, n).
@@ -134,7 +142,7 @@ def _combine(
         if unreliable is not None:
             avoid = _conflicts(unreliable, chosen, candidates[block])
         neighbours = _closest(values, W[:, chosen], rows, candidates[block], k, chosen, avoid)
-        weights = _affine_weights(values[:, neighbours.ravel()], W[:, chosen], rows, k)
+        weights = _affine_weights(values[:, neighbours.ravel()], W[:, chosen], rows, k, noise)
         combined[:, block] = np.einsum("rnk,nk->rn", values[:, neighbours], weights)
     return combined
 
@@ -209,17 +217,28 @@ def _closest(
     return np.take_along_axis(candidates, chosen, axis=1)
 
 
-def _affine_weights(values: np.ndarray, tracks: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
+def _affine_weights(
+    values: np.ndarray, tracks: np.ndarray, rows: np.ndarray, k: int, noise: float = 0.0
+) -> np.ndarray:
     """Weights summing to one that best reproduce each point's observed positions from its
     neighbours' model positions, ``min ||sum_i w_i (x_i - y)||^2`` over the observed rows,
-    with a small ridge (:data:`WEIGHT_RIDGE`), (n, k).
+    with a ridge, (n, k).
 
-    values : (2F, n k) neighbours' model positions; tracks : (2F, n); rows : (2F, n) bool.
+    The ridge is :data:`WEIGHT_RIDGE` of the mean diagonal, plus the noise variance times the
+    number of observed rows: what noise of that variance in the neighbours' positions would add
+    to the diagonal. Without it, the weights of a noisy point seen in a few frames fit its noise
+    with large weights of opposite signs, which the combination carries into the other frames
+    (a face at 1 % noise, tracks lost from a random frame on: 0.17 of the tracks' RMS off at
+    the filled entries, 0.035 with it).
+
+    values : (2F, n k) neighbours' model positions; tracks : (2F, n); rows : (2F, n) bool;
+    noise : the noise variance of an entry of W.
     """
     n = tracks.shape[1]
     offsets = (values.reshape(-1, n, k) - tracks[:, :, None]) * rows[:, :, None]
     gram = np.einsum("rnk,rnl->nkl", offsets, offsets)
     ridge = WEIGHT_RIDGE * np.trace(gram, axis1=1, axis2=2) / k + 1e-300
+    ridge += noise * rows.sum(axis=0)
     gram += ridge[:, None, None] * np.eye(k)
     weights = np.linalg.solve(gram, np.ones((n, k, 1)))[:, :, 0]
     return weights / weights.sum(axis=1, keepdims=True)

@@ -190,7 +190,9 @@ def _reconstruct(
             block_noise / normalise(model.fill(W, observed))[1] ** 2 > defaults.EXACT_DATA_NOISE
         )
         reliable = missing.trusted_entries(model, observed, noisy=noisy)
-        values, borrowed_points = neighbours.borrow_values(model, W, observed, reliable)
+        values, borrowed_points = neighbours.borrow_values(
+            model, W, observed, reliable, noise=block_noise or 0.0
+        )
         borrowed = bool(borrowed_points.any())
         # Hidden entries near observed frames of their track corrected by it (moju_core.gaps).
         W = gaps.filled(values, W, observed, model.gap)

@@ -128,3 +128,25 @@ def test_no_point_is_borrowed_when_every_entry_is_reliable_or_no_point_is_well_s
     same, nothing = neighbours.borrow_values(model, data.W, seen_twice, seen_twice)
     assert_array_equal(same, model.values())
     assert not nothing.any()
+
+
+def test_the_weights_of_noisy_tracks_seen_in_a_few_frames_do_not_fit_their_noise():
+    # Points that are affine combinations of 8 neighbours in every frame, seen with noise in
+    # 3 frames: without the noise in the ridge their weights reproduce the noise there and
+    # carry it, amplified, into the other 37.
+    rng = np.random.default_rng(0)
+    n_frames, n_points, k = 40, 200, 8
+    neighbour_tracks = rng.standard_normal((2 * n_frames, n_points, k)).cumsum(axis=0) * 0.1
+    true_weights = rng.dirichlet(np.ones(k), size=n_points)
+    clean = np.einsum("rnk,nk->rn", neighbour_tracks, true_weights)
+    sigma = 0.05
+    tracks = clean + sigma * rng.standard_normal(clean.shape)
+    rows = np.zeros_like(clean, dtype=bool)
+    rows[:6] = True  # frames 0-2
+    values = neighbour_tracks.reshape(2 * n_frames, n_points * k)
+    errors = {}
+    for noise in (0.0, sigma**2):
+        weights = neighbours._affine_weights(values, tracks * rows, rows, k, noise)
+        combined = np.einsum("rnk,nk->rn", neighbour_tracks, weights)
+        errors[noise] = float(np.sqrt(np.mean((combined - clean)[~rows] ** 2)))
+    assert errors[sigma**2] < 0.5 * errors[0.0]
