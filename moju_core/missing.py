@@ -13,9 +13,7 @@ the observed entries only (:class:`LowRank`):
   rank-r approximation of the current filled matrix, repeatedly;
 * then a few sweeps of alternating least squares on the observed entries (every row's
   ``(a_i, t_i)`` and every column's ``b_j`` solved exactly, vectorised), which converge much
-  faster than EM where many entries are hidden; the fits at the chosen rank pull each frame's
-  row towards its neighbouring frames' where the frame's observed points leave it undetermined
-  (:func:`complete_at_rank`, ``temporal``);
+  faster than EM where many entries are hidden;
 * the rank chosen by the error on held-out observed entries, both random single entries and
   runs of consecutive frames of some points (they mimic tracks that end and occluders; random
   entries alone choose ranks too high for those patterns).
@@ -340,13 +338,8 @@ def complete(W: np.ndarray, visibility: np.ndarray, noise: float | None = None) 
     if model is not None:
         return model
     choice = choose_rank(W, visibility, noise or 0.0)
-    # The rank choice's fits keep the plain ridge: with the temporal one, the paper (closing
-    # occlusion, seed 56) chose rank 9 instead of 6 and its filled entries were 0.22 of the
-    # RMS off instead of 0.013.
-    model = complete_at_rank(W, visibility, choice.rank, temporal=True)
-    longer = complete_at_rank(
-        W, visibility, choice.rank, LONG_EM_SWEEPS, LONG_ALS_SWEEPS, temporal=True
-    )
+    model = complete_at_rank(W, visibility, choice.rank)
+    longer = complete_at_rank(W, visibility, choice.rank, LONG_EM_SWEEPS, LONG_ALS_SWEEPS)
     gain = observed_misfit(model, W, visibility) - observed_misfit(longer, W, visibility)
     if gain > (noise or 0.0):
         model = longer
@@ -528,18 +521,8 @@ def complete_at_rank(
     rank: int,
     em_sweeps: int = COMPLETION_SWEEPS,
     als_sweeps: int = ALS_SWEEPS,
-    *,
-    temporal: bool = False,
 ) -> LowRank:
-    """Rank-r model of W: EM warm start, then ALS sweeps (see the module docstring).
-
-    ``temporal``: the ridge of the ALS row step pulls a frame's row (the r coefficients and the
-    translation of its x and of its y row) towards the mean of the neighbouring frames' rows
-    instead of towards zero. It acts where the frame's observed points do not determine the
-    row: where they span fewer than r directions of the points' coefficients (a sheet with 60 %
-    of its points behind the occluder in one frame), the row is otherwise zero in the missing
-    directions and the model's values of the frame's hidden points are far off.
-    """
+    """Rank-r model of W: EM warm start, then ALS sweeps (see the module docstring)."""
     mask = expand_mask(visibility)
     counts = mask.sum(axis=1)
     translation = np.where(mask, W, 0.0).sum(axis=1) / np.maximum(counts, 1)
@@ -562,11 +545,8 @@ def complete_at_rank(
     weights = mask.astype(np.float64)
     for _ in range(als_sweeps):
         right = _solve_columns(left, data - translation[:, None] * weights, weights)
-        prior = None
-        if temporal:
-            prior = _adjacent_frames_mean(np.hstack([left, translation[:, None]]).T)
         augmented = _solve_columns(
-            np.vstack([right, np.ones((1, right.shape[1]))]).T, data.T, weights.T, prior=prior
+            np.vstack([right, np.ones((1, right.shape[1]))]).T, data.T, weights.T
         )  # (r + 1, 2F)
         left, translation = augmented[:-1].T, augmented[-1].copy()
     return LowRank(left=np.ascontiguousarray(left), right=right, translation=translation)
@@ -744,41 +724,21 @@ def _centred_part(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.n
     return np.ascontiguousarray(q @ (u[:, keep] * s[keep])), (left @ mean)[:, 0]
 
 
-def _adjacent_frames_mean(rows: np.ndarray) -> np.ndarray:
-    """Each frame's entries replaced by the mean of the frames before and after it (the one
-    neighbour at either end), for (k, 2F) columns ordered x, y per frame."""
-    k, n_rows = rows.shape
-    frames = rows.reshape(k, n_rows // 2, 2)
-    if frames.shape[1] < 2:
-        return rows.copy()
-    out = np.empty_like(frames)
-    out[:, 1:-1] = 0.5 * (frames[:, :-2] + frames[:, 2:])
-    out[:, 0], out[:, -1] = frames[:, 1], frames[:, -2]
-    return out.reshape(k, n_rows)
-
-
 def _solve_columns(
-    features: np.ndarray,
-    data: np.ndarray,
-    weights: np.ndarray,
-    ridge: float = ALS_RIDGE,
-    prior: np.ndarray | None = None,
+    features: np.ndarray, data: np.ndarray, weights: np.ndarray, ridge: float = ALS_RIDGE
 ) -> np.ndarray:
     """For every column j: ``argmin_x sum_i w_ij (d_ij - features_i x)^2``, as (k, m).
 
     ``data`` is zero where ``weights`` is; features (n, k), data and weights (n, m); ``ridge``
-    as in :data:`ALS_RIDGE`, towards ``prior`` (k, m) if given, else towards zero.
+    as in :data:`ALS_RIDGE`.
     """
     n, k = features.shape
     outer = (features[:, :, None] * features[:, None, :]).reshape(n, k * k)
     normals = (weights.T @ outer).reshape(-1, k, k)
     # Per feature, relative to its normal-matrix diagonal had every row been seen: invariant
     # to the scaling of either factor, relatively stronger for columns seen in few rows.
-    diagonal = ridge * np.einsum("ik,ik->k", features, features) + 1e-300
-    normals += np.diag(diagonal)
+    normals += np.diag(ridge * np.einsum("ik,ik->k", features, features) + 1e-300)
     rhs = features.T @ data  # (k, m)
-    if prior is not None:
-        rhs += diagonal[:, None] * prior
     return np.linalg.solve(normals, rhs.T[:, :, None])[:, :, 0].T
 
 

@@ -58,28 +58,6 @@ def test_completion_ignores_the_hidden_values_and_recovers_a_low_rank_w(face):
     assert np.abs(translation - truth).max() < 0.5 * np.abs(visible_mean - truth).max()
 
 
-def test_a_frame_whose_observed_points_miss_a_direction_takes_it_from_the_frames_around_it():
-    # A rank-3 W whose third coefficient is zero on the left half of a grid; in frame 15 only
-    # that half is seen, so the frame's third row is not determined by its observed points.
-    n_frames, side = 30, 20
-    x, y = (g.ravel() for g in np.meshgrid(np.linspace(0, 1, side), np.linspace(0, 1, side)))
-    right = np.stack([x - 0.5, y - 0.5, np.maximum(x - 0.5, 0.0)])  # (3, P)
-    t = np.arange(n_frames) / n_frames
-    left = np.stack(
-        [np.cos(t), np.sin(t), 0.3 * np.sin(2 * t), np.cos(3 * t), 1 + t, np.sin(5 * t)], axis=1
-    ).reshape(2 * n_frames, 3)  # smooth in time, (2F, 3)
-    W = left @ right + np.repeat(np.linspace(0, 1, n_frames), 2)[:, None]
-    visibility = np.ones((n_frames, x.size), dtype=bool)
-    visibility[15, x > 0.5] = False
-    hidden = np.where(missing.expand_mask(visibility), W, 0.0)
-    rows = missing.expand_mask(~visibility)
-    errors = {}
-    for temporal in (False, True):
-        model = missing.complete_at_rank(hidden, visibility, 3, temporal=temporal)
-        errors[temporal] = np.sqrt(np.mean((model.values() - W)[rows] ** 2) / np.mean(W**2))
-    assert errors[True] < 0.01 < 0.5 < errors[False]
-
-
 def test_masked_data_step_leaves_hidden_entries_at_the_target():
     rng = np.random.default_rng(0)
     rotations = project_to_stiefel(rng.standard_normal((6, 2, 3)))
