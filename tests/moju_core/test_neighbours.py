@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
@@ -150,3 +152,25 @@ def test_the_weights_of_noisy_tracks_seen_in_a_few_frames_do_not_fit_their_noise
         combined = np.einsum("rnk,nk->rn", neighbour_tracks, weights)
         errors[noise] = float(np.sqrt(np.mean((combined - clean)[~rows] ** 2)))
     assert errors[sigma**2] < 0.5 * errors[0.0]
+
+
+def test_an_entry_whose_neighbours_are_unreliable_there_too_takes_its_track_interpolated():
+    # The left 60 % of a grid are hidden in frame 5 and the model is off there (a shifted
+    # row): the far-left points have no reliable neighbour in that frame.
+    n_frames, side = 12, 10
+    x, y = (g.ravel() for g in np.meshgrid(np.linspace(0, 1, side), np.linspace(0, 1, side)))
+    f = np.arange(n_frames)[:, None]
+    W = np.stack([x + 0.1 * f + 0.2 * np.sin(f) * y, y - 0.05 * f + 0.1 * np.cos(f) * x], axis=1)
+    W = W.reshape(2 * n_frames, x.size)
+    visibility = np.ones((n_frames, x.size), dtype=bool)
+    visibility[5, x < 0.6] = False
+    hidden = np.where(missing.expand_mask(visibility), W, 0.0)
+    model = missing.complete_at_rank(hidden, visibility, 3)
+    shifted = model.translation.copy()
+    shifted[10:12] += 5.0
+    model = replace(model, translation=shifted)
+    values, borrowed = neighbours.borrow_values(model, hidden, visibility, reliable=visibility)
+    assert not borrowed.any()
+    far_left = np.flatnonzero(x == 0.0)
+    interpolated = 0.5 * (W[8:10, far_left] + W[12:14, far_left])
+    assert_allclose(values[10:12, far_left], interpolated, atol=1e-12)
