@@ -19,7 +19,9 @@ locally close to affine in its deformation keeps the same weights in every frame
    Its neighbours are, before any other, points that are reliable wherever it is unreliable.
    The model's unreliable entries of well-seen points can be far off: on a face under a band
    over 20 % of the width (seed 3, 2,000 points) their error was 2.5 times the tracks' RMS,
-   0.70 once corrected.
+   0.70 once corrected. Where one of the neighbours is unreliable at that frame as well, an
+   entry next to an observed frame of the point takes the point's track interpolated across
+   the gap instead (:func:`_interpolate_past_unreliable`).
 2. Every other point with an unreliable entry takes the combination in all its frames: the
    points seen in fewer than half the frames, whose own observations do not fix their column.
 
