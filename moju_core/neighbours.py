@@ -180,7 +180,13 @@ def _interpolate_past_unreliable(
     the observed entries of ``visibility`` (F, n); reliable : (F, P) bool, the observed and
     trusted entries of every point.
     """
-    shaky = ~reliable[:, neighbours].all(axis=2)  # (F, n): a neighbour unreliable there
+    if neighbours.shape[1] == 0:
+        return
+    shaky = np.empty(visibility.shape, dtype=bool)  # (F, n): a neighbour unreliable there
+    step = _block(visibility.shape[0], neighbours.shape[1])
+    for start in range(0, neighbours.shape[0], step):
+        block = slice(start, start + step)
+        shaky[:, block] = ~reliable[:, neighbours[block]].all(axis=2)
     parts = gaps.pieces(tracks, combined, visibility)  # track: interpolated minus combined
     use = expand_mask(shaky) & parts.inside & (parts.distance == 1)
     combined[use] += parts.track[use]
