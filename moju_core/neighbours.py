@@ -172,7 +172,8 @@ def _interpolate_past_unreliable(
     the band hides 60 % of the points in some frames, whose rows the observed points do not
     determine, and the neighbours' values there are as far off as the point's. One frame
     from an observed frame (seeds 66, 67, 70-72, noise 0 and 1 %) the combination was 0.31-1.41
-    of the tracks' RMS off at those entries, the interpolation 0.03-0.32; two to seven frames
+    of the tracks' RMS off at the untrusted entries of well-seen points, the interpolation
+    0.03-0.32 (but for 2 entries); two to seven frames
     into a gap the interpolation was as often the worse (0.09-0.95 against 0.17-0.50), so the
     combination stays there, and before a track's first or after its last observed frame.
 
