@@ -75,3 +75,10 @@ def add_job(store: JobStore, storage: LocalStorage) -> Callable[..., UUID]:
 def face_W() -> np.ndarray:
     """Tracks of a 300-point, 10-frame face."""
     return make_sequence("face1", n_points=300).W
+
+
+@pytest.fixture(scope="session")
+def long_W() -> np.ndarray:
+    """Tracks of a 2,000-point, 10-frame face: with the tests' ``LONG`` parameters a solve
+    that runs for tens of seconds (the 300-point face runs its 10,000 iterations in 5 s)."""
+    return make_sequence("face1", n_points=2_000).W

@@ -156,11 +156,11 @@ def test_a_late_heartbeat_keeps_the_job(
 
 
 def test_running_attempt_stops_when_given_up(
-    store: JobStore, storage: LocalStorage, settings: Settings, add_job, face_W, redis_url: str
+    store: JobStore, storage: LocalStorage, settings: Settings, add_job, long_W, redis_url: str
 ) -> None:
     """The work horse of an attempt the watchdog gave up stops solving and records nothing."""
     fast = settings.model_copy(update={"heartbeat_interval": 0.1, "heartbeat_ttl": 0.5})
-    job_id = add_job(face_W, LONG)
+    job_id = add_job(long_W, LONG)
     watchdog = Watchdog(Redis.from_url(redis_url), store, storage, fast)
     outcome: dict = {}
     runner = threading.Thread(
@@ -188,11 +188,11 @@ def test_running_attempt_stops_when_given_up(
 
 
 def test_attempt_that_sees_its_job_queued_again_is_superseded_not_cancelled(
-    store: JobStore, storage: LocalStorage, settings: Settings, add_job, face_W
+    store: JobStore, storage: LocalStorage, settings: Settings, add_job, long_W
 ) -> None:
     """The solver may read the status ``queued`` (given up by the watchdog) before its own
     heartbeat learns that the lease is gone: that is not a user's cancel."""
-    job_id = add_job(face_W, LONG)
+    job_id = add_job(long_W, LONG)
     outcome: dict = {}
     runner = threading.Thread(
         target=lambda: outcome.update(execute(job_id, store, storage, settings)), daemon=True

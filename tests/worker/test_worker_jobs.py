@@ -69,8 +69,8 @@ def test_job_cancelled_while_queued_is_not_run(store, storage, settings, add_job
     assert record.status is JobStatus.CANCELLED and record.started_at is None
 
 
-def test_job_cancelled_while_running_stops_promptly(store, storage, settings, add_job, face_W):
-    job_id = add_job(face_W, LONG)
+def test_job_cancelled_while_running_stops_promptly(store, storage, settings, add_job, long_W):
+    job_id = add_job(long_W, LONG)
     outcome: dict = {}
     runner = threading.Thread(
         target=lambda: outcome.update(execute(job_id, store, storage, settings))
