@@ -237,13 +237,18 @@ def test_serve_restarts_killed_worker_redis_and_api(tmp_path: Path) -> None:
     path = write_measurements(
         tmp_path / "w.npz", Measurements(W=make_sequence("face1", n_points=300).W)
     )
+    # The job killed mid-way solves 2,000 points: 1,500 iterations of the 300 take under a
+    # second, and the job could finish before the worker is killed.
+    long_path = write_measurements(
+        tmp_path / "long.npz", Measurements(W=make_sequence("face1", n_points=2_000).W)
+    )
     fast_leases = {"MOJU_HEARTBEAT_INTERVAL": "0.5", "MOJU_HEARTBEAT_TTL": "2"}
     served = Served(tmp_path / "data", tmp_path / "serve.log", **fast_leases)
     seen: set[int] = set()
     try:
         # A worker killed mid-job (as the out-of-memory killer would): its orphaned work
         # horse is killed, a new worker starts, and the job runs again and finishes.
-        running = _submit(served.url, path, MEDIUM_PARAMS)
+        running = _submit(served.url, long_path, MEDIUM_PARAMS)
         queued = _submit(served.url, path, {"max_iter": 20})
         _wait_job(served.url, running, lambda j: (j["progress"] or {}).get("iteration", 0) >= 3)
         worker_pid = served.child("-m worker")

@@ -643,6 +643,10 @@ def test_console_script_reconstructs(inputs, tmp_path):
     assert len(list(ply_dir.glob("*.ply"))) == N_FRAMES
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_console_script_ctrl_c_exits_130_without_output(long_input, tmp_path):
     output = tmp_path / "result.npz"
     process = subprocess.Popen(
@@ -650,6 +654,10 @@ def test_console_script_ctrl_c_exits_130_without_output(long_input, tmp_path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         env=subprocess_environment(),
+        # Ctrl-C in a terminal: a test runner started in the background of a non-interactive
+        # shell ignores SIGINT, its children inherit that, and Python then installs no
+        # KeyboardInterrupt handler.
+        preexec_fn=_default_sigint,
     )
     stderr = bytearray()
 
