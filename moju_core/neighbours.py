@@ -142,7 +142,7 @@ def _combine(
     k = min(NEIGHBOURS, reference.size - int(unreliable is not None))
     candidates = _candidates(model, W, visibility, points, reference, CANDIDATE_FACTOR * (k + 1))
     combined = np.empty((W.shape[0], points.size))
-    chosen_all = np.empty((points.size, k), dtype=np.int64)
+    picked = np.empty((points.size, k), dtype=np.int64)
     step = _block(W.shape[0], candidates.shape[1])
     for start in range(0, points.size, step):
         block = slice(start, start + step)
@@ -153,8 +153,8 @@ def _combine(
         neighbours = _closest(values, W[:, chosen], rows, candidates[block], k, chosen, avoid)
         weights = _affine_weights(values[:, neighbours.ravel()], W[:, chosen], rows, k, noise)
         combined[:, block] = np.einsum("rnk,nk->rn", values[:, neighbours], weights)
-        chosen_all[block] = neighbours
-    return combined, chosen_all
+        picked[block] = neighbours
+    return combined, picked
 
 
 def _interpolate_past_unreliable(
@@ -171,11 +171,11 @@ def _interpolate_past_unreliable(
     The combination carries its neighbours' errors: on the paper under the closing occlusion
     the band hides 60 % of the points in some frames, whose rows the observed points do not
     determine, and the neighbours' values there are as far off as the point's. One frame
-    from an observed frame (seeds 66, 67, 70-72, noise 0 and 1 %) the combination was 0.31-1.41
-    of the tracks' RMS off at the untrusted entries of well-seen points, the interpolation
-    0.03-0.32 (but for 2 entries); two to seven frames
-    into a gap the interpolation was as often the worse (0.09-0.95 against 0.17-0.50), so the
-    combination stays there, and before a track's first or after its last observed frame.
+    from an observed frame (seeds 66, 67, 70-72, noise 0 and 1 %) the combination was
+    0.31-1.41 of the tracks' RMS off at the untrusted entries of well-seen points, the
+    interpolation 0.03-0.32 (but for 2 entries); two to seven frames into a gap the
+    interpolation was as often the worse (0.09-0.95 against 0.17-0.50), so the combination
+    stays there, and before a track's first or after its last observed frame.
 
     combined : (2F, n), updated; neighbours : (n, k) point indices; tracks : (2F, n), read at
     the observed entries of ``visibility`` (F, n); reliable : (F, P) bool, the observed and
