@@ -58,7 +58,8 @@ class WarmStart:
     vectors : ndarray of shape (m, b) or None
         The Ritz vectors of the last block, by decreasing value.
     surviving : int
-        Number of values the last call returned.
+        Number of values the last call returned (on either route of
+        :func:`moju_core.lrr.singular_value_threshold`).
     seed : int
         Seed of the random columns that start or widen a block.
     sweeps : int

@@ -13,6 +13,10 @@ from moju_core.leading_svd import WarmStart
 #: Shorter side of x from which a call given a warm start takes the truncated route: below it
 #: the Gram route is cheaper (and the results of smaller problems stay those of the Gram route).
 TRUNCATED_MIN_SIDE = 400
+#: :func:`_leading_eigh`: the subset eigensolver runs while the expected pairs are at most
+#: this fraction of the Gram matrix's side (its cost equals the full one's at about 12 pairs
+#: for n = 99 and 14 for n = 123).
+SUBSET_MAX_FRACTION = 0.125
 
 
 def singular_value_threshold(
@@ -78,7 +82,10 @@ def singular_value_threshold(
     if warm is not None and min(x.shape) >= TRUNCATED_MIN_SIDE:
         route = leading_svd.leading_triplets(x, tau, keep, warm)
     if route is None:
-        columns, rows, column_scale, nuclear = _gram_route(x, tau, keep)
+        expected = None if warm is None else warm.surviving
+        columns, rows, column_scale, nuclear = _gram_route(x, tau, keep, expected)
+        if warm is not None:
+            warm.surviving = columns.shape[1]
     else:
         # y = [U_r diag(shrunk / s)] [U_r^T x], as the wide Gram route.
         vectors, s, rows = route
@@ -94,9 +101,10 @@ def singular_value_threshold(
 
 
 def _gram_route(
-    x: np.ndarray, tau: float, keep: int
+    x: np.ndarray, tau: float, keep: int, expected: int | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """The threshold's factors through the Gram matrix of the shorter side of x (m, n).
+    """The threshold's factors through the Gram matrix of the shorter side of x (m, n);
+    ``expected`` is the number of values likely to survive (:func:`_leading_eigh`).
 
     Returns ``(columns, rows, column_scale, nuclear)``: the result is ``columns @ rows``,
     ``columns * column_scale`` is ``U_r diag(shrunk)`` (m, r) and ``nuclear`` the sum of the
@@ -104,7 +112,7 @@ def _gram_route(
     """
     m, n = x.shape
     wide = m <= n
-    values, vectors = _leading_eigh(x @ x.T if wide else x.T @ x, tau, keep)
+    values, vectors = _leading_eigh(x @ x.T if wide else x.T @ x, tau, keep, expected)
     s = np.sqrt(np.clip(values, 0.0, None))
     shrunk = np.clip(s - tau, 0.0, None)
     if keep > 0:
@@ -122,16 +130,21 @@ def _gram_route(
     return (x @ kept) * factors, kept.T, np.ones(len(factors)), nuclear
 
 
-def _leading_eigh(gram: np.ndarray, tau: float, keep: int) -> tuple[np.ndarray, np.ndarray]:
+def _leading_eigh(
+    gram: np.ndarray, tau: float, keep: int, expected: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The eigenpairs of a PSD Gram matrix (n, n) above ``tau^2``, and at least its ``keep``
-    largest, in ascending order.
+    largest, in ascending order (all of them where that is cheaper).
 
-    LAPACK's MRRR driver computes only the requested pairs after the tridiagonal reduction:
-    at n = 123 one thread takes 0.34 ms for a few pairs against 0.70 ms for all of them when
-    the matrix has full rank (0.35 against 0.41 ms at rank 5).
+    LAPACK's MRRR driver computes only the requested pairs after the tridiagonal reduction,
+    but each pair costs about 0.06 of a full eigendecomposition at n = 99-123 (one thread,
+    AMD EPYC: 0.43 of numpy's ``eigh`` for 2 pairs, 0.88 for 10, 1.44 for 20 at n = 99; 0.32,
+    0.50, 0.71 at n = 200). So the full one (divide and conquer) runs when ``expected``, the
+    count of the caller's previous call (the loop's S# changes little between iterations),
+    is above :data:`SUBSET_MAX_FRACTION` of n.
     """
     n = gram.shape[0]
-    if tau <= 0.0 or n == 0:
+    if tau <= 0.0 or n == 0 or (expected is not None and expected > SUBSET_MAX_FRACTION * n):
         return np.linalg.eigh(gram)
     values, vectors = scipy.linalg.eigh(
         gram, subset_by_value=(tau * tau, np.inf), driver="evr", check_finite=False

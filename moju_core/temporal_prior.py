@@ -366,14 +366,26 @@ def depth_step(
     """
     if pull is None:
         pull = depth_pull(back_projected, normals, prior)
-    factor = cholesky_banded(depth_bands(normals, rho, prior), check_finite=False)
-    rhs = np.einsum("fc,fcp->fp", normals, target)
-    rhs *= rho
-    rhs -= pull
-    depths = solve_factored_bands(factor, rhs)
+    depths = _solve_depths(normals, target, rho, prior, _depth_rhs(normals, target, rho, pull))
     np.multiply(normals[:, :, None], depths[:, None, :], out=out)
     out += back_projected
     return out
+
+
+def _depth_rhs(normals: np.ndarray, target: np.ndarray, rho: float, pull: np.ndarray) -> np.ndarray:
+    """The depth step's right-hand side ``rho N^T T - pull``, (F, P), a new array."""
+    rhs = np.einsum("fc,fcp->fp", normals, target)
+    rhs *= rho
+    rhs -= pull
+    return rhs
+
+
+def _solve_depths(
+    normals: np.ndarray, target: np.ndarray, rho: float, prior: TemporalPrior, rhs: np.ndarray
+) -> np.ndarray:
+    """The depths d (F, P) of the depth step for its right-hand side (overwritten), O(F P)."""
+    factor = cholesky_banded(depth_bands(normals, rho, prior), check_finite=False)
+    return solve_factored_bands(factor, rhs)
 
 
 def masked_depth_step(
@@ -448,8 +460,10 @@ def masked_depth_step(
     moved *= weights[:, None, :]
     # The depth step is linear in the fixed part: its pull and its shapes change by the
     # moved points' offset only (column by column).
-    pull = pull.copy()
-    pull[:, points] += depth_pull(moved, normals, prior)
-    depth_step(back_projected, normals, target, rho, prior, out, pull)
+    rhs = _depth_rhs(normals, target, rho, pull)
+    rhs[:, points] -= depth_pull(moved, normals, prior)
+    depths = _solve_depths(normals, target, rho, prior, rhs)
+    np.multiply(normals[:, :, None], depths[:, None, :], out=out)
+    out += back_projected
     out[:, :, points] += moved
     return out

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from moju_core.leading_svd import WarmStart
 from moju_core.lrr import coefficient_step, kernel_eigh, singular_value_threshold
 
 
@@ -118,3 +119,19 @@ def test_svt_with_a_left_filter_and_nothing_surviving_is_zero():
     y, nuclear = singular_value_threshold(x, 1e6, left=lambda columns: 2.0 * columns)
     assert_allclose(y, 0.0)
     assert nuclear == 0.0
+
+
+@pytest.mark.parametrize(("shape", "keep"), [((40, 90), 0), ((90, 40), 3)])
+def test_svt_gives_the_same_result_whichever_eigensolver_the_expected_count_picks(shape, keep):
+    rng = np.random.default_rng(4)
+    x = rng.standard_normal(shape) * np.logspace(0, -2, shape[1])
+    tau = float(np.median(np.linalg.svd(x, compute_uv=False)))
+    results = []
+    for expected in (0, min(shape)):  # the subset route, then the full eigendecomposition
+        warm = WarmStart()
+        warm.surviving = expected
+        results.append(singular_value_threshold(x, tau, keep=keep, warm=warm))
+        # The call records its own count for the next one.
+        assert warm.surviving == np.linalg.matrix_rank(results[-1][0])
+    assert_allclose(results[0][0], results[1][0], atol=1e-10)
+    assert results[0][1] == pytest.approx(results[1][1], rel=1e-12)

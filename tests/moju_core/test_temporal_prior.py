@@ -175,7 +175,7 @@ def test_depth_step_fits_the_tracks_and_is_optimal_over_the_depths(n_frames, wei
     [
         (0.0, False, True, {"depth"}),
         (0.01, False, True, set()),
-        (0.0, True, True, {"masked", "depth"}),  # the masked step ends with the depth step
+        (0.0, True, True, {"masked"}),
         (0.01, True, True, set()),
         (0.0, True, False, set()),  # estimated cameras: untrusted entries keep it soft
     ],
