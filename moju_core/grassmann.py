@@ -168,7 +168,9 @@ def project_observed(
     the 3 x p rows of frame f): the group's subspace, learnt from all its members, carries the
     point through the frames where it is hidden. The orthogonal projection of
     :func:`project_groups` would fit c to the hidden frames' current values too. Columns of
-    fully observed points are left as they are. O(F n p^2) per group, in place.
+    fully observed points are left as they are. In place, O(F (K + m) p^2) for the m points
+    with hidden frames: the K groups' per-frame normal matrices in one batched product, two
+    products per group, and one batched p x p solve.
 
     Parameters
     ----------
@@ -188,26 +190,34 @@ def project_observed(
         coefficients a little instead of not at all.
     """
     n_frames = observed.shape[0]
-    partial = ~observed.all(axis=0)
-    position = np.cumsum(partial) - 1  # column j's index among the partial points
-    for i in range(len(bounds) - 1):
-        columns = bounds[i] + np.flatnonzero(partial[bounds[i] : bounds[i + 1]])
-        if columns.size == 0:
-            continue
-        basis = bases[i].reshape(n_frames, 3, -1)  # Phi_f, (F, 3, p)
-        weights = observed[:, columns].astype(np.float64)  # (F, n)
-        if hidden_weight:
-            weights += hidden_weight * (1.0 - weights)
-        frame_normals = np.einsum("fca,fcb->fab", basis, basis)  # (F, p, p)
-        normals = np.einsum("fn,fab->nab", weights, frame_normals)
-        normals += (
-            1e-10 * np.trace(normals, axis1=1, axis2=2)[:, None, None] * np.eye(basis.shape[2])
-        )
-        values = trajectories[:, columns] if source is None else source[:, position[columns]]
-        block = values.reshape(n_frames, 3, -1) * weights[:, None, :]
-        rhs = np.einsum("fca,fcn->na", basis, block)
-        coefficients = np.linalg.solve(normals, rhs[:, :, None])[:, :, 0]  # (n, p)
-        trajectories[:, columns] = bases[i] @ coefficients.T
+    partial = np.flatnonzero(~observed.all(axis=0))  # the m points with hidden frames
+    if partial.size == 0:
+        return trajectories
+    p = bases.shape[2]
+    # Phi_f^T Phi_f of every group and frame in one batched product, (K, F, p * p).
+    frames = bases.reshape(len(bases), n_frames, 3, p)
+    frame_normals = (frames.transpose(0, 1, 3, 2) @ frames).reshape(len(bases), n_frames, p * p)
+    weights = observed[:, partial].astype(np.float64)  # (F, m)
+    if hidden_weight:
+        weights += hidden_weight * (1.0 - weights)
+    values = trajectories[:, partial] if source is None else source
+    block = (values.reshape(n_frames, 3, -1) * weights[:, None, :]).reshape(3 * n_frames, -1)
+    normals = np.empty((partial.size, p * p))
+    rhs = np.empty((partial.size, p))
+    # The points of group i are the slice ``edges[i]:edges[i + 1]`` of ``partial``.
+    edges = np.searchsorted(partial, bounds)
+    groups = np.flatnonzero(np.diff(edges))
+    for i in groups:
+        part = slice(edges[i], edges[i + 1])
+        normals[part] = weights[:, part].T @ frame_normals[i]
+        rhs[part] = (bases[i].T @ block[:, part]).T
+    normals = normals.reshape(-1, p, p)
+    diagonal = normals.reshape(-1, p * p)[:, :: p + 1]  # a view
+    diagonal += 1e-10 * diagonal.sum(axis=1, keepdims=True)
+    coefficients = np.linalg.solve(normals, rhs[:, :, None])[:, :, 0]  # (m, p)
+    for i in groups:
+        part = slice(edges[i], edges[i + 1])
+        trajectories[:, partial[part]] = bases[i] @ coefficients[part].T
     return trajectories
 
 
