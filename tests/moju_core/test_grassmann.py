@@ -112,3 +112,31 @@ def test_track_and_project_converges_to_the_rank_p_projection():
         bases = grassmann.track_and_project(work, bounds, bases)
     assert_allclose(work, grassmann.project_groups(data, bounds, exact), atol=1e-8)
     assert np.all(grassmann.projection_distance_sq(bases, exact) < 1e-12)
+
+
+def test_project_observed_fits_each_point_in_its_own_groups_span_on_its_weighted_frames():
+    rng = np.random.default_rng(7)
+    n_frames, p = 9, 3
+    bounds = np.array([0, 5, 9, 14, 20])  # the second group has no hidden frame
+    n_points = bounds[-1]
+    bases = np.stack(
+        [np.linalg.qr(rng.standard_normal((3 * n_frames, p)))[0] for _ in range(len(bounds) - 1)]
+    )
+    observed = rng.random((n_frames, n_points)) > 0.3
+    observed[:, 5:9] = True
+    observed[:3] |= True  # every point keeps 3 frames: each fit is determined
+    trajectories = rng.standard_normal((3 * n_frames, n_points))
+    out = grassmann.project_observed(
+        trajectories.copy(), bounds, bases, observed, hidden_weight=0.2
+    )
+    for group in range(len(bounds) - 1):
+        for j in range(bounds[group], bounds[group + 1]):
+            if observed[:, j].all():
+                assert_allclose(out[:, j], trajectories[:, j], atol=0)
+                continue
+            # Weighted least squares of the point's frames in its group's span, directly.
+            sqrt_w = np.sqrt(np.where(observed[:, j], 1.0, 0.2)).repeat(3)
+            c = np.linalg.lstsq(
+                sqrt_w[:, None] * bases[group], sqrt_w * trajectories[:, j], rcond=None
+            )[0]
+            assert_allclose(out[:, j], bases[group] @ c, atol=1e-9)
