@@ -293,7 +293,7 @@ def _reconstruct(
         weight = choice.exact_weight if exact else choice.weight
         params = params.model_copy(update={"smoothness": weight})
         fit = None
-        if _tries_signal_fit(params, noise, estimate.source):
+        if _tries_signal_fit(params, noise, estimate.source, choice.exact_weight):
             # With missing data the trials fitted the observed entries only: the projected
             # completed tracks need their own.
             reuse = choice if observed is None else None
@@ -428,14 +428,20 @@ def _flung(shapes: np.ndarray, tracks: np.ndarray, observed: np.ndarray | None) 
     return bool(np.linalg.norm(centred, axis=1).max() > FLUNG_FACTOR * reach)
 
 
-def _tries_signal_fit(params: SolverParams, noise: float, rotation_source: str) -> bool:
+def _tries_signal_fit(
+    params: SolverParams, noise: float, rotation_source: str, exact_weight: float
+) -> bool:
     """Whether the solve tries the exact fit of the projected tracks (moju_core/signal_fit.py).
 
     Noisy tracks (complete, or completed where points are hidden), known cameras, a
-    local-model method (moju, sdg), and a soft rule that chose a weight of at most the
-    depth-setting one. Estimated cameras are left out: an exact fit trusts them, and on the
-    noisy oscillating sheets, whose estimates are 20-30 degrees off, it raised e3D (bumps-osc,
-    1 % noise, seed 5: 0.171 -> 0.323).
+    local-model method (moju, sdg), a soft rule that chose a weight of at most the
+    depth-setting one, and an exact rule on the same trials (``exact_weight``) that accepts
+    the depth-setting weight. Estimated cameras are left out: an exact fit trusts them, and on
+    the noisy oscillating sheets, whose estimates are 20-30 degrees off, it raised e3D
+    (bumps-osc, 1 % noise, seed 5: 0.171 -> 0.323). With missing data the trials fitted the
+    observed entries only and the projected tracks get trials of their own (4 solves); where
+    the observed entries' exact rule rejected the depth-setting weight, those rejected it too
+    on every solve measured (docs/solver.md, "Noisy tracks: the signal fit").
     """
     return (
         params.method in ("moju", "sdg")
@@ -443,6 +449,7 @@ def _tries_signal_fit(params: SolverParams, noise: float, rotation_source: str) 
         and rotation_source == "known"
         and params.smoothness is not None
         and params.smoothness <= defaults.MIN_DEPTH_PRIOR
+        and exact_weight >= defaults.MIN_DEPTH_PRIOR
     )
 
 
