@@ -366,7 +366,7 @@ def depth_step(
     """
     if pull is None:
         pull = depth_pull(back_projected, normals, prior)
-    depths = _solve_depths(normals, target, rho, prior, _depth_rhs(normals, target, rho, pull))
+    depths = _solve_depths(normals, rho, prior, _depth_rhs(normals, target, rho, pull))
     np.multiply(normals[:, :, None], depths[:, None, :], out=out)
     out += back_projected
     return out
@@ -381,7 +381,7 @@ def _depth_rhs(normals: np.ndarray, target: np.ndarray, rho: float, pull: np.nda
 
 
 def _solve_depths(
-    normals: np.ndarray, target: np.ndarray, rho: float, prior: TemporalPrior, rhs: np.ndarray
+    normals: np.ndarray, rho: float, prior: TemporalPrior, rhs: np.ndarray
 ) -> np.ndarray:
     """The depths d (F, P) of the depth step for its right-hand side (overwritten), O(F P)."""
     factor = cholesky_banded(depth_bands(normals, rho, prior), check_finite=False)
@@ -462,7 +462,7 @@ def masked_depth_step(
     # moved points' offset only (column by column).
     rhs = _depth_rhs(normals, target, rho, pull)
     rhs[:, points] -= depth_pull(moved, normals, prior)
-    depths = _solve_depths(normals, target, rho, prior, rhs)
+    depths = _solve_depths(normals, rho, prior, rhs)
     np.multiply(normals[:, :, None], depths[:, None, :], out=out)
     out += back_projected
     out[:, :, points] += moved
