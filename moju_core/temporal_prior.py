@@ -366,10 +366,9 @@ def depth_step(
     """
     if pull is None:
         pull = depth_pull(back_projected, normals, prior)
-    depths = _solve_depths(normals, rho, prior, _depth_rhs(normals, target, rho, pull))
-    np.multiply(normals[:, :, None], depths[:, None, :], out=out)
-    out += back_projected
-    return out
+    return _depth_solution(
+        normals, rho, prior, _depth_rhs(normals, target, rho, pull), back_projected, out
+    )
 
 
 def _depth_rhs(normals: np.ndarray, target: np.ndarray, rho: float, pull: np.ndarray) -> np.ndarray:
@@ -380,12 +379,21 @@ def _depth_rhs(normals: np.ndarray, target: np.ndarray, rho: float, pull: np.nda
     return rhs
 
 
-def _solve_depths(
-    normals: np.ndarray, rho: float, prior: TemporalPrior, rhs: np.ndarray
+def _depth_solution(
+    normals: np.ndarray,
+    rho: float,
+    prior: TemporalPrior,
+    rhs: np.ndarray,
+    back_projected: np.ndarray,
+    out: np.ndarray,
 ) -> np.ndarray:
-    """The depths d (F, P) of the depth step for its right-hand side (overwritten), O(F P)."""
+    """``S0 + N d`` into ``out`` (F, 3, P), the depths d (F, P) solved for the depth step's
+    right-hand side ``rhs`` (overwritten), O(F P)."""
     factor = cholesky_banded(depth_bands(normals, rho, prior), check_finite=False)
-    return solve_factored_bands(factor, rhs)
+    depths = solve_factored_bands(factor, rhs)
+    np.multiply(normals[:, :, None], depths[:, None, :], out=out)
+    out += back_projected
+    return out
 
 
 def masked_depth_step(
@@ -462,8 +470,6 @@ def masked_depth_step(
     # moved points' offset only (column by column).
     rhs = _depth_rhs(normals, target, rho, pull)
     rhs[:, points] -= depth_pull(moved, normals, prior)
-    depths = _solve_depths(normals, rho, prior, rhs)
-    np.multiply(normals[:, :, None], depths[:, None, :], out=out)
-    out += back_projected
+    _depth_solution(normals, rho, prior, rhs, back_projected, out)
     out[:, :, points] += moved
     return out
