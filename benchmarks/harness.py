@@ -183,10 +183,16 @@ def describe(row: dict[str, Any]) -> str:
 
 
 def _cpu_model() -> str:
+    """The CPU's model name with its family and model numbers where Linux gives them: the same
+    name covers several generations, whose BLAS kernels round differently."""
     try:
+        fields: dict[str, str] = {}
         for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+            key, _, value = line.partition(":")
+            fields.setdefault(key.strip(), value.strip())
+        if "model name" in fields:
+            numbers = [f"{k} {fields[k]}" for k in ("cpu family", "model") if k in fields]
+            return fields["model name"] + (f" ({', '.join(numbers)})" if numbers else "")
     except OSError:
         pass
     return platform.processor() or platform.machine()
@@ -234,8 +240,13 @@ def provenance(argv: Sequence[str] | None = None) -> dict[str, Any]:
             "scikit-learn": sklearn.__version__,
             "matplotlib": matplotlib.__version__,
         },
+        # With the kernel set a dynamic-architecture build chose for this CPU (rounding differs).
         "blas": sorted(
-            {f"{i['internal_api']} {i.get('version') or ''}" for i in threadpool_info()}
+            {
+                f"{i['internal_api']} {i.get('version') or ''}"
+                + (f" ({i['architecture']} kernels)" if i.get("architecture") else "")
+                for i in threadpool_info()
+            }
         ),
         "solver_threads": 1,
     }
