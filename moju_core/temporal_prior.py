@@ -452,24 +452,28 @@ def masked_depth_step(
     points = np.flatnonzero(~measured.all(axis=0))
     if points.size == 0:
         return depth_step(back_projected, normals, target, rho, prior, out, pull)
-    n_frames = target.shape[0]
+    n_frames, _, n_points = target.shape
+    # Where every point has such an entry (a band over most of a sheet, sparse markers), whole
+    # arrays in place of gathered and scattered copies: the same values, about half the cost.
+    columns = slice(None) if points.size == n_points else points
     # The filter G_rho on their 3n coordinates, by the row sweep (faster than LAPACK's per
-    # column solve of FrameFilter.__call__ at this many columns).
+    # column solve of FrameFilter.__call__ at this many columns); it overwrites its input.
     factor = cholesky_banded(smoothing_filter(prior, rho).bands, check_finite=False)
-    moved = target[:, :, points].reshape(n_frames, 3 * points.size)
-    moved = solve_factored_bands(factor, moved).reshape(n_frames, 3, points.size)
+    moved = target.copy() if points.size == n_points else target[:, :, points]
+    moved = solve_factored_bands(factor, moved.reshape(n_frames, 3 * points.size))
+    moved = moved.reshape(n_frames, 3, points.size)
     along = normals[:, None, :] @ moved  # (F, 1, n): the filtered target's depth
     moved -= normals[:, :, None] * along
     # The offset from the tracks: (rho u + a s) / (rho + a) - s = rho / (rho + a) (u - s),
     # and none where measured.
-    moved -= back_projected[:, :, points]
-    weights = np.where(anchored[:, points], rho / (rho + 1.0), 1.0)
-    weights[measured[:, points]] = 0.0
+    moved -= back_projected[:, :, columns]
+    weights = np.where(anchored[:, columns], rho / (rho + 1.0), 1.0)
+    weights[measured[:, columns]] = 0.0
     moved *= weights[:, None, :]
     # The depth step is linear in the fixed part: its pull and its shapes change by the
     # moved points' offset only (column by column).
     rhs = _depth_rhs(normals, target, rho, pull)
-    rhs[:, points] -= depth_pull(moved, normals, prior)
+    rhs[:, columns] -= depth_pull(moved, normals, prior)
     _depth_solution(normals, rho, prior, rhs, back_projected, out)
-    out[:, :, points] += moved
+    out[:, :, columns] += moved
     return out

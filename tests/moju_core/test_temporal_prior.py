@@ -206,20 +206,26 @@ def test_the_loop_fits_exactly_only_tracks_without_noise(monkeypatch, noise, mas
 
 
 @pytest.mark.parametrize(("n_frames", "weight", "rho"), [(12, 7.0, 0.5), (9, 100.0, 1e-2)])
+@pytest.mark.parametrize("every_point_hidden", [True, False])
 def test_masked_depth_step_fits_the_measured_entries_and_places_the_hidden_ones(
-    n_frames, weight, rho
+    n_frames, weight, rho, every_point_hidden
 ):
     rotations, tracks, target = _step_inputs(n_frames, 6, seed=n_frames)
     rng = np.random.default_rng(n_frames)
     hidden = rng.random((n_frames, 6)) < 0.35
+    # Every point with a hidden frame (whole arrays), or two seen in every frame (gathered).
+    hidden[0] = every_point_hidden
+    hidden[:, :2] &= every_point_hidden
     anchored = hidden & (rng.random((n_frames, 6)) < 0.5)
     normals = projection.viewing_directions(rotations)
     prior = temporal_prior.temporal_prior(n_frames, weight)
     back_projected = projection.back_project(rotations, tracks)
     shapes = np.empty_like(target)
+    given = target.copy()
     temporal_prior.masked_depth_step(
         back_projected, ~hidden, anchored, normals, target, rho, prior, shapes
     )
+    assert_allclose(target, given, rtol=0, atol=0)  # the filter works on a copy
     image = projection.project(rotations, shapes)
     seen = np.broadcast_to(~hidden[:, None, :], tracks.shape)
     assert_allclose(image[seen], tracks[seen], atol=1e-12)
@@ -236,6 +242,27 @@ def test_masked_depth_step_fits_the_measured_entries_and_places_the_hidden_ones(
     gradient = (weight * (difference.T @ (difference @ flat))).reshape(shapes.shape)
     gradient += rho * (shapes - target)
     assert_allclose(np.einsum("fc,fcp->fp", normals, gradient), 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("every_point_hidden", [True, False])
+def test_masked_depth_step_leaves_its_target_alone_at_the_row_sweeps_size(every_point_hidden):
+    # 3 x 130 columns: the filter runs as the in-place row sweep.
+    n_points = 130
+    rotations, tracks, target = _step_inputs(8, n_points, seed=4)
+    hidden = np.zeros((8, n_points), dtype=bool)
+    hidden[3, : n_points if every_point_hidden else n_points - 1] = True
+    normals = projection.viewing_directions(rotations)
+    back_projected = projection.back_project(rotations, tracks)
+    given, shapes = target.copy(), np.empty_like(target)
+    temporal_prior.masked_depth_step(
+        back_projected, ~hidden, hidden, normals, target, 0.3,
+        temporal_prior.temporal_prior(8, 20.0), shapes,
+    )  # fmt: skip
+    assert 3 * (hidden.any(axis=0).sum()) >= temporal_prior.ROW_SWEEP_MIN_COLUMNS
+    assert_allclose(target, given, rtol=0, atol=0)
+    image = projection.project(rotations, shapes)
+    seen = np.broadcast_to(~hidden[:, None, :], tracks.shape)
+    assert_allclose(image[seen], tracks[seen], atol=1e-12)
 
 
 def test_masked_depth_step_without_hidden_entries_is_the_depth_step():
