@@ -39,9 +39,10 @@ from moju_core.errors import MeasurementError
 from moju_core.io import Measurements, read_measurements, read_result, write_measurements
 from moju_core.io import write_result as write_result_file
 from moju_core.metrics import evaluate as evaluate_scores
+from moju_core.missing import MAX_UNEXPLAINED
 from moju_core.params import SolverParams, rotation_method
 from moju_core.ply import frame_file_name, write_ply_frames
-from moju_core.result import Progress, Result
+from moju_core.result import Diagnostics, Progress, Result
 from moju_core.tracking import DEFAULT_STEP, solvable_tracks, tracks_measurements, write_tracks
 from moju_core.video import is_video_source
 
@@ -403,10 +404,28 @@ def _summary(result: Result, n_frames: int, n_points: int, observed: float = 1.0
         exact_fit=result.exact_fit,
     )
     seen = f" ({100 * observed:.1f} % observed)" if observed < 1.0 else ""
-    return (
+    line = (
         f"{n_frames} frames x {n_points} points{seen}: {result.n_iter} "
         f"iteration{'' if result.n_iter == 1 else 's'}, {reason}, "
         f"{result.timings['total']:.1f} s"
+    )
+    completion = _completion_line(result.diagnostics)
+    return line if completion is None else f"{line}\n{completion}"
+
+
+def _completion_line(diagnostics: Diagnostics | None) -> str | None:
+    """How the hidden entries were completed, for a reader judging the filled-in points; None
+    when nothing was hidden (or the result records no diagnostics)."""
+    rank = None if diagnostics is None else diagnostics.completion_rank
+    if diagnostics is None or rank is None:
+        return None
+    if diagnostics.exact_completion:
+        return f"hidden entries: completed by an exact rank-{rank} model of the tracks"
+    unexplained = diagnostics.completion_unexplained or 0.0
+    used = "" if unexplained <= MAX_UNEXPLAINED else "; not fitted as data"
+    return (
+        f"hidden entries: completed by a rank-{rank} model, whose error on held-out observed "
+        f"entries beyond the noise is {100 * unexplained:.1f} % of a rank-1 model's{used}"
     )
 
 

@@ -42,6 +42,7 @@ from moju_core.io import (
 from moju_core.metrics import evaluate
 from moju_core.params import SolverParams
 from moju_core.ply import read_ply_points
+from moju_core.result import Diagnostics
 from moju_core.result import Result as SolverResult
 from moju_core.validation import with_missing
 
@@ -504,6 +505,29 @@ def test_reconstruct_hands_the_visibility_to_the_solver(occluded_input, sequence
     np.testing.assert_array_equal(read_result(output).visibility, occlusion())
     # gt in the input: the occluded entries are scored too.
     assert "e3D of the occluded entries, Procrustes:" in outcome.stdout
+
+
+@pytest.mark.parametrize(
+    ("completion", "expected"),
+    [
+        ({}, None),
+        (
+            {"completion_rank": 13, "exact_completion": True},
+            "hidden entries: completed by an exact rank-13 model of the tracks",
+        ),
+        (
+            {"completion_rank": 3, "completion_unexplained": 0.004},
+            "a rank-3 model, whose error on held-out observed entries beyond the noise is "
+            "0.4 % of a rank-1 model's",
+        ),
+        ({"completion_rank": 5, "completion_unexplained": 0.12}, "12.0 % of a rank-1 model's; "
+         "not fitted as data"),
+    ],
+)  # fmt: skip
+def test_the_summary_says_how_the_hidden_entries_were_completed(completion, expected):
+    diagnostics = Diagnostics(n_groups_used=1, rotation_source="known", **completion)
+    line = solver_commands._completion_line(diagnostics)
+    assert line == expected if expected is None else expected in line
 
 
 def test_complete_input_reaches_the_solver_without_a_mask(inputs, sequence, tmp_path,
