@@ -39,7 +39,6 @@ from moju_core.errors import MeasurementError
 from moju_core.io import Measurements, read_measurements, read_result, write_measurements
 from moju_core.io import write_result as write_result_file
 from moju_core.metrics import evaluate as evaluate_scores
-from moju_core.missing import MAX_UNEXPLAINED
 from moju_core.params import SolverParams, rotation_method
 from moju_core.ply import frame_file_name, write_ply_frames
 from moju_core.result import Diagnostics, Progress, Result
@@ -422,10 +421,9 @@ def _completion_line(diagnostics: Diagnostics | None) -> str | None:
     if diagnostics.exact_completion:
         return f"hidden entries: completed by an exact rank-{rank} model of the tracks"
     unexplained = diagnostics.completion_unexplained or 0.0
-    used = "" if unexplained <= MAX_UNEXPLAINED else "; not fitted as data"
     return (
         f"hidden entries: completed by a rank-{rank} model, whose error on held-out observed "
-        f"entries beyond the noise is {100 * unexplained:.1f} % of a rank-1 model's{used}"
+        f"entries beyond the noise is {100 * unexplained:.1f} % of a rank-1 model's"
     )
 
 

@@ -520,8 +520,7 @@ def test_reconstruct_hands_the_visibility_to_the_solver(occluded_input, sequence
             "a rank-3 model, whose error on held-out observed entries beyond the noise is "
             "0.4 % of a rank-1 model's",
         ),
-        ({"completion_rank": 5, "completion_unexplained": 0.12}, "12.0 % of a rank-1 model's; "
-         "not fitted as data"),
+        ({"completion_rank": 5, "completion_unexplained": 0.12}, "12.0 % of a rank-1 model's"),
     ],
 )  # fmt: skip
 def test_the_summary_says_how_the_hidden_entries_were_completed(completion, expected):
