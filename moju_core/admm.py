@@ -51,6 +51,13 @@ from moju_core.stopping import StoppingTest, loop_tolerance
 
 #: Called once per iteration with (iteration, gap, rho); returning True stops the loop.
 IterationHook = Callable[[int, float, float], bool]
+#: ``abandon(shapes) -> bool``: whether the loop has gone astray, given the shapes (F, 3, P) in
+#: the loop's point order; :func:`run` asks every :data:`ABANDON_CHECK_EVERY` iterations.
+AbandonTest = Callable[[np.ndarray], bool]
+#: Iterations between two :data:`AbandonTest` calls: a diverging masked exact fit grows about
+#: twofold per iteration (face3, 2,000 points, the closing occlusion, seed 92), so a check every
+#: ten iterations finds it within a few tens of iterations at a small cost.
+ABANDON_CHECK_EVERY = 10
 
 #: The per-iteration diagnostics of :attr:`LoopOutput.history`, in the order of iterate().
 HISTORY_KEYS = (
@@ -119,6 +126,7 @@ def run(
     observed: np.ndarray | None = None,
     exact_data: bool = False,
     measured: np.ndarray | None = None,
+    abandon: AbandonTest | None = None,
 ) -> LoopOutput:
     """Run Algorithm 1 on scale-normalised, centred tracks with given rotations.
 
@@ -153,6 +161,10 @@ def run(
         With ``exact_data`` and hidden entries: the entries fitted exactly (the observed
         ones); the other entries of ``observed`` are fitted softly
         (:func:`moju_core.temporal_prior.masked_depth_step`).
+    abandon : callable, optional
+        :data:`AbandonTest`, asked every :data:`ABANDON_CHECK_EVERY` iterations: True stops
+        the loop (``StopReason.STOPPED``) with the shapes as they are, for a caller that then
+        solves another way.
 
     Returns
     -------
@@ -176,6 +188,9 @@ def run(
         for key in HISTORY_KEYS:
             history[key].append(diagnostics[key])
         if hook is not None and hook(iteration, diagnostics["gap"], state.rho):
+            stop_reason = StopReason.STOPPED
+            break
+        if abandon is not None and iteration % ABANDON_CHECK_EVERY == 0 and abandon(state.shapes):
             stop_reason = StopReason.STOPPED
             break
         reason = stopping(diagnostics["gap_shape"], state.grouping_settled, state.rho)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from collections.abc import Callable
@@ -336,6 +337,11 @@ def _reconstruct(
         report("iterating", done + iteration, gap, rho)
         return False
 
+    # A masked exact fit that throws hidden entries off the object is abandoned as soon as it
+    # does (it does not come back: face3 seed 92 grew twofold per iteration to 1e5 times the
+    # object and ran to max_iter), and solved again softly below.
+    limit = FLUNG_FACTOR * _image_reach(tracks, observed)
+
     def loop(exact: bool, held: np.ndarray | None) -> admm.LoopOutput:
         return admm.run(
             tracks,
@@ -347,13 +353,14 @@ def _reconstruct(
             observed=fitted,
             exact_data=exact,
             measured=held,
+            abandon=None if held is None else (lambda shapes: _beyond(shapes, limit)),
         )
 
     if params.method == "pta":
         out = _trajectory_basis(tracks, rotations, params, hook, fitted)
     else:
         out = loop(exact_data, measured)
-        if measured is not None and _flung(out.shapes, tracks, observed):
+        if measured is not None and _beyond(out.shapes, limit):
             warnings.warn(
                 "the exact fit of the observed entries threw hidden entries far off the "
                 f"object (more than {FLUNG_FACTOR:g} times the largest image distance from "
@@ -406,7 +413,7 @@ def _reconstruct(
     )
 
 
-#: :func:`_flung`: a reconstructed point further from its frame's centroid than this many times
+#: :func:`_beyond`: a reconstructed point further from its frame's centroid than this many times
 #: the largest distance of an observed track from the image centroid is off the object. On
 #: the articulated body under its oscillating camera (`body-osc`, prior weight 1,000), with
 #: 10 % of the tracks lost from a random frame on, the masked exact fit's loop threw a lost
@@ -419,13 +426,22 @@ def _reconstruct(
 FLUNG_FACTOR = 5.0
 
 
-def _flung(shapes: np.ndarray, tracks: np.ndarray, observed: np.ndarray | None) -> bool:
-    """Whether a loop's shapes (F, 3, P) put a point more than :data:`FLUNG_FACTOR` times the
-    largest observed image distance (tracks (F, 2, P), centred) from its frame's centroid."""
+def _image_reach(tracks: np.ndarray, observed: np.ndarray | None) -> float:
+    """The largest distance of an observed track (F, 2, P), centred, from its image's centre."""
     image = np.linalg.norm(tracks, axis=1)  # (F, P)
-    reach = image.max() if observed is None else image[observed].max()
+    return float(image.max() if observed is None else image[observed].max())
+
+
+def _beyond(shapes: np.ndarray, limit: float) -> bool:
+    """Whether shapes (F, 3, P) put a point further than ``limit`` from its frame's centroid.
+
+    A first look at the largest coordinate (one pass) rules most cases out: no point is
+    further than ``2 sqrt(3)`` times it from a centroid.
+    """
+    if 2.0 * math.sqrt(3.0) * float(np.abs(shapes).max()) <= limit:
+        return False
     centred = shapes - shapes.mean(axis=2, keepdims=True)
-    return bool(np.linalg.norm(centred, axis=1).max() > FLUNG_FACTOR * reach)
+    return bool(np.linalg.norm(centred, axis=1).max() > limit)
 
 
 def _tries_signal_fit(

@@ -248,3 +248,15 @@ def test_unset_rotation_method_uses_given_rotations_else_estimates(face):
 def test_an_estimating_method_with_given_rotations_is_refused(face, method):
     with pytest.raises(MeasurementError, match=f"params.rotations is '{method}', which estimates"):
         reconstruct(face.W, SolverParams(rotations=method), rotations=face.rotations)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_test_for_shapes_off_the_object_agrees_with_the_distance_it_bounds(seed):
+    from moju_core.solver import _beyond
+
+    rng = np.random.default_rng(seed)
+    shapes = rng.standard_normal((6, 3, 40)) + rng.standard_normal((6, 3, 1))  # offset frames
+    shapes[rng.integers(6), :, rng.integers(40)] *= 1.0 + 10.0 * rng.random()
+    distance = np.linalg.norm(shapes - shapes.mean(axis=2, keepdims=True), axis=1).max()
+    for limit in (0.5 * distance, 0.999 * distance, 1.001 * distance, 2 * distance, 10 * distance):
+        assert _beyond(shapes, limit) == (distance > limit)
