@@ -143,6 +143,32 @@ class ProgressReport(BaseModel):
         return value
 
 
+class CompletionSummary(BaseModel):
+    """How the hidden entries of an input with missing points were completed before the solve
+    (the low-rank model of the tracks that fills them; docs/solver.md, "Missing data")."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    rank: int = Field(description="Rank of the low-rank model of the tracks.", examples=[6])
+    exact: bool = Field(
+        description=(
+            "Whether the tracks are exactly of that rank: the model then predicts the hidden "
+            "entries it trusts as precisely as measurements."
+        ),
+        examples=[False],
+    )
+    held_out_error: float | None = Field(
+        None,
+        description=(
+            "For a model that is not exact: its error on held-out observed entries beyond the "
+            "noise, relative to a rank-1 model's (0: everything held out was predicted; large "
+            "values mean the filled-in points carry little more than the priors). Null for an "
+            "exact model."
+        ),
+        examples=[0.023],
+    )
+
+
 class ResultSummary(BaseModel):
     """Outcome of a finished reconstruction (the arrays are in the result download)."""
 
@@ -182,6 +208,9 @@ class ResultSummary(BaseModel):
     )
     tracking: TrackingSummary | None = Field(
         None, description="For a video job: how the tracking went."
+    )
+    completion: CompletionSummary | None = Field(
+        None, description="For an input with missing points: how the hidden entries were completed."
     )
 
 

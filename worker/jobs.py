@@ -38,7 +38,7 @@ from moju_core import feasibility
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.io import Measurements
 from moju_core.params import rotation_method
-from moju_core.result import Progress, Result, Stage
+from moju_core.result import Diagnostics, Progress, Result, Stage
 from moju_core.tracking import (
     DEFAULT_STEP,
     TrackingProgress,
@@ -103,6 +103,20 @@ def _summary(
         "resolved_parameters": result.params.model_dump(mode="json"),
         # Distinct messages in order: a warning raised every iteration is shown once.
         "warnings": list(dict.fromkeys(str(w.message) for w in caught)),
+        "completion": _completion(result.diagnostics),
+    }
+
+
+def _completion(diagnostics: Diagnostics | None) -> dict[str, Any] | None:
+    """:class:`service.schemas.CompletionSummary` of a solve with hidden entries, else None."""
+    if diagnostics is None or diagnostics.completion_rank is None:
+        return None
+    return {
+        "rank": int(diagnostics.completion_rank),
+        "exact": bool(diagnostics.exact_completion),
+        "held_out_error": None
+        if diagnostics.exact_completion
+        else float(diagnostics.completion_unexplained or 0.0),
     }
 
 

@@ -42,11 +42,29 @@ def test_finished_job_stores_result_and_summary(store, storage, settings, add_jo
     # the tracks exactly (noise-free tracks stop at that fit's precision).
     assert record.result.shape_gap == expected.final_shape_gap > 0
     assert record.result.exact_fit is expected.exact_fit
+    assert record.result.completion is None  # nothing was hidden
     # The solver's warnings reach the user, each once.
     assert record.result.warnings == list(dict.fromkeys(str(w.message) for w in caught))
     assert stored.metadata["job_id"] == str(job_id)
     # Finished records expire with the retention period.
     assert 0 < store.connection.ttl(f"moju:job:{job_id}") <= settings.result_ttl
+
+
+def test_a_job_with_missing_points_says_how_they_were_completed(
+    store, storage, settings, add_job, face_W
+):
+    W = face_W.copy()
+    W[6:10, 100:160] = np.nan  # points 100-159 hidden in frames 3 and 4
+    params = SolverParams(max_iter=30, seed=2)
+    job_id = add_job(W, params)
+    assert execute(job_id, store, storage, settings)["status"] == "finished"
+    completion = store.get(job_id, reconcile_with_rq=False).result.completion
+    with threadpool_limits(limits=1), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        expected = reconstruct(W, params).diagnostics
+    assert completion.rank == expected.completion_rank >= 1
+    assert completion.exact is expected.exact_completion is False  # 10 frames: not tried
+    assert completion.held_out_error == pytest.approx(expected.completion_unexplained)
 
 
 def test_measurement_error_fails_the_job_with_the_message(
