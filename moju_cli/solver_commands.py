@@ -415,9 +415,9 @@ def _summary(result: Result, n_frames: int, n_points: int, observed: float = 1.0
 def _completion_line(diagnostics: Diagnostics | None) -> str | None:
     """How the hidden entries were completed, for a reader judging the filled-in points; None
     when nothing was hidden (or the result records no diagnostics)."""
-    rank = None if diagnostics is None else diagnostics.completion_rank
-    if diagnostics is None or rank is None:
+    if diagnostics is None or diagnostics.completion_rank is None:
         return None
+    rank = diagnostics.completion_rank
     if diagnostics.exact_completion:
         return f"hidden entries: completed by an exact rank-{rank} model of the tracks"
     unexplained = diagnostics.completion_unexplained or 0.0

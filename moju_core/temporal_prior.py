@@ -455,11 +455,12 @@ def masked_depth_step(
     n_frames, _, n_points = target.shape
     # Where every point has such an entry (a band over most of a sheet, sparse markers), whole
     # arrays in place of gathered and scattered copies: the same values, about half the cost.
-    columns = slice(None) if points.size == n_points else points
+    every = points.size == n_points
+    columns = slice(None) if every else points
     # The filter G_rho on their 3n coordinates, by the row sweep (faster than LAPACK's per
     # column solve of FrameFilter.__call__ at this many columns); it overwrites its input.
     factor = cholesky_banded(smoothing_filter(prior, rho).bands, check_finite=False)
-    moved = target.copy() if points.size == n_points else target[:, :, points]
+    moved = target.copy() if every else target[:, :, points]  # a copy either way
     moved = solve_factored_bands(factor, moved.reshape(n_frames, 3 * points.size))
     moved = moved.reshape(n_frames, 3, points.size)
     along = normals[:, None, :] @ moved  # (F, 1, n): the filtered target's depth
