@@ -9,6 +9,8 @@ import signal
 import socket
 import subprocess
 import sys
+import time
+from collections.abc import Sequence
 from pathlib import Path
 
 # From <linux/prctl.h>.
@@ -51,6 +53,42 @@ def stop_process(process: subprocess.Popen, *, timeout: float, sig: int = signal
         except ProcessLookupError:
             pass
     return wait_or_kill(process, timeout=timeout)
+
+
+#: Seconds between two signals to the same RQ worker. RQ ignores a shutdown signal that comes
+#: within a second of the one that began its warm shutdown (``request_force_stop``, which
+#: is meant for the duplicate signals of a worker pool), timed from when the worker *handled*
+#: that one: a busy or niced worker that handles it late ignores a second signal sent a
+#: second after it was sent.
+RQ_SIGNAL_SPACING = 1.25
+
+
+def signal_until_exit(
+    processes: Sequence[subprocess.Popen], *, timeout: float, sig: int = signal.SIGTERM
+) -> None:
+    """Send ``sig`` to each process that runs, again every :data:`RQ_SIGNAL_SPACING` seconds
+    while it still runs, for up to ``timeout`` seconds; then SIGKILL the ones left and reap
+    them all.
+
+    Used for an RQ worker's cold shutdown, which a single signal may not start (see
+    :data:`RQ_SIGNAL_SPACING`); the worker ignores the repeats once it is going down
+    (:meth:`worker.runner.MojuWorker.request_force_stop`).
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        running = [p for p in processes if p.poll() is None]
+        if not running or time.monotonic() >= deadline:
+            break
+        for process in running:
+            try:
+                os.kill(process.pid, sig)
+            except ProcessLookupError:
+                pass
+        resend = min(time.monotonic() + RQ_SIGNAL_SPACING, deadline)
+        while time.monotonic() < resend and any(p.poll() is None for p in running):
+            time.sleep(0.05)
+    for process in processes:
+        wait_or_kill(process, timeout=0.0)
 
 
 def _parents() -> dict[int, int]:

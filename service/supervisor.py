@@ -43,7 +43,12 @@ import httpx
 from redis import Redis
 from redis.exceptions import RedisError
 
-from service.processes import die_with_parent, stop_process, wait_or_kill
+from service.processes import (
+    RQ_SIGNAL_SPACING,
+    die_with_parent,
+    signal_until_exit,
+    stop_process,
+)
 from service.redis_server import RedisServer
 from service.serve_status import publish_down
 
@@ -396,16 +401,14 @@ class Supervisor:
         for worker in running:
             worker.send_signal(signal.SIGTERM)  # RQ: warm shutdown, finish the current job
         # RQ ignores a second signal that comes within a second of the first.
-        deadline = time.monotonic() + max(self.options.grace, 1.1)
+        deadline = time.monotonic() + max(self.options.grace, RQ_SIGNAL_SPACING)
         while time.monotonic() < deadline and any(w.poll() is None for w in running):
             if self.signals_received > 1 and time.monotonic() > deadline - self.options.grace:
                 break  # a second Ctrl-C: no more grace
             time.sleep(0.1)
-        for worker in running:
-            if worker.poll() is None:
-                worker.send_signal(signal.SIGTERM)  # RQ: cold shutdown, kill the work horse
-        for worker in running:
-            wait_or_kill(worker, timeout=10.0)
+        # RQ's cold shutdown: the work horse killed, the job recorded as interrupted. Sent
+        # again until the worker exits: one that handled the warm signal late ignores it.
+        signal_until_exit(running, timeout=10.0)
 
     def run(self) -> int:
         """Start, print where the service is, watch, stop. Returns the exit status."""

@@ -11,6 +11,7 @@ import logging
 import os
 import signal
 import time
+from types import FrameType
 
 from redis import Redis
 from redis.exceptions import ConnectionError as RedisConnectionError
@@ -47,6 +48,20 @@ class MojuWorker(Worker):
     """
 
     interrupted_job_id: str | None = None
+
+    def request_force_stop(self, signum: int, frame: FrameType | None) -> None:
+        """RQ's cold shutdown, deaf to further signals once it goes ahead.
+
+        ``moju serve`` repeats the signal until the worker exits
+        (:func:`service.processes.signal_until_exit`); a repeat handled while the worker
+        records the interrupted job would cut the recording short. RQ ignores a signal
+        within a second of the warm shutdown's: then it returns, and the worker listens again.
+        """
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+        super().request_force_stop(signum, frame)  # raises SystemExit when it goes ahead
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self.request_force_stop)
 
     def execute_job(self, job: RQJob, queue: Queue) -> None:
         """Run one job in a work horse, noting the job if a shutdown interrupts it."""

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -19,7 +18,7 @@ from rq import Queue, Worker
 
 from moju_core.datasets import Sequence
 from moju_core.io import Measurements
-from service.processes import stop_process
+from service.processes import signal_until_exit
 from service.settings import Settings
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -96,10 +95,8 @@ def running_worker(settings: Settings, log_path: Path, **env: str) -> Iterator[W
         yield worker
     finally:
         connection.close()
-        if process.poll() is None:
-            os.kill(process.pid, signal.SIGTERM)
-            time.sleep(1.2)  # RQ ignores a second signal within a second of the first
-        stop_process(process, timeout=10)
+        # Warm shutdown, then cold (repeated until the worker exits).
+        signal_until_exit([process], timeout=15)
 
 
 def wait_for(

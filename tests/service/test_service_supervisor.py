@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -108,3 +109,40 @@ def test_readyz_names_the_dead_worker_until_it_is_back(tmp_path: Path) -> None:
         _until(lambda: _readyz(base_url).status_code == 200, "readiness after the restart")
     finally:
         supervisor.stop()
+
+
+#: A stand-in for an RQ worker busy with a job: it handles the warm-shutdown signal late (as a
+#: niced worker next to solves may), then, like RQ, ignores a signal within a second of the
+#: moment it handled that one; a later one is its cold shutdown, which it reports.
+LATE_WORKER = """
+import pathlib, signal, sys, time
+report, warm = pathlib.Path(sys.argv[1]), []
+def handle(signum, frame):
+    if not warm:
+        time.sleep(0.5)
+        warm.append(time.monotonic())
+    elif time.monotonic() - warm[0] >= 1.0:
+        report.write_text("cold shutdown")
+        sys.exit(0)
+signal.signal(signal.SIGTERM, handle)
+report.write_text("ready")
+while True:
+    time.sleep(0.05)
+"""
+
+
+def test_workers_that_handle_the_warm_signal_late_still_shut_down_cold(tmp_path: Path) -> None:
+    """A single cold-shutdown signal one second after the warm one is ignored by a worker
+    that handled the warm one late: it was killed and its job never recorded as interrupted."""
+    options = _options(tmp_path, RestartPolicy())
+    options.grace = 0.0
+    supervisor = Supervisor(options)
+    reports = [tmp_path / f"worker{i}.txt" for i in range(2)]
+    for i, report in enumerate(reports):
+        child = Child(f"worker {i + 1}", "worker")
+        child.process = subprocess.Popen([sys.executable, "-c", LATE_WORKER, str(report)])
+        supervisor.worker_children.append(child)
+    _until(lambda: all(r.exists() for r in reports), "the stand-in workers")
+    supervisor._stop_workers()
+    assert [r.read_text() for r in reports] == ["cold shutdown"] * 2
+    assert [c.process.returncode for c in supervisor.worker_children] == [0, 0]

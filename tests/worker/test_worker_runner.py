@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import signal
+
 import pytest
 from redis.exceptions import ConnectionError as RedisConnectionError
 
@@ -46,3 +48,40 @@ def test_a_connection_error_during_a_job_is_not_recorded_as_a_shutdown(monkeypat
     with pytest.raises(RedisConnectionError):
         worker.execute_job(type("Job", (), {"id": "rq-job"})(), None)
     assert worker.interrupted_job_id is None
+
+
+@pytest.fixture
+def restore_signal_handlers():
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for sig, handler in saved.items():
+        signal.signal(sig, handler)
+
+
+def test_a_cold_shutdown_that_goes_ahead_ignores_further_signals(
+    monkeypatch, restore_signal_handlers
+) -> None:
+    """``moju serve`` repeats the cold-shutdown signal until the worker exits; a repeat must
+    not cut short the recording of the interrupted job."""
+
+    def going_down(self, signum, frame) -> None:
+        raise SystemExit()
+
+    monkeypatch.setattr(runner.Worker, "request_force_stop", going_down)
+    worker = runner.MojuWorker.__new__(runner.MojuWorker)
+    with pytest.raises(SystemExit):
+        worker.request_force_stop(signal.SIGTERM, None)
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
+    assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+
+
+def test_a_signal_rq_ignores_leaves_the_worker_listening(
+    monkeypatch, restore_signal_handlers
+) -> None:
+    """Within a second of the warm shutdown RQ ignores the signal: the next one must still
+    reach the cold shutdown."""
+    monkeypatch.setattr(runner.Worker, "request_force_stop", lambda self, signum, frame: None)
+    worker = runner.MojuWorker.__new__(runner.MojuWorker)
+    worker.request_force_stop(signal.SIGTERM, None)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        assert signal.getsignal(sig) == worker.request_force_stop
