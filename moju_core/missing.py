@@ -224,30 +224,26 @@ class LowRank:
         (the larger; x and y rows: the larger). Below 1 the prediction is as precise as a
         measurement.
         """
-        mask = expand_mask(visibility).astype(np.float64)
         left = np.hstack([self.left, self.translation[:, None]])  # (2F, r + 1)
-        right = np.vstack([self.right, np.ones((1, self.right.shape[1]))])  # (r + 1, P)
-        column, column_base = _variance(left, mask)  # (2F, P), (2F,)
-        row, row_base = _variance(right.T, mask.T)  # (P, 2F), (P,)
-        relative = np.maximum(column / column_base[:, None], (row / row_base[:, None]).T)
-        absolute = np.maximum(column, row.T)
-        return (
-            np.maximum(relative[0::2], relative[1::2]),
-            np.maximum(absolute[0::2], absolute[1::2]),
-        )
+        features = np.vstack([self.right, np.ones((1, self.right.shape[1]))]).T  # (P, r + 1)
+        column, column_base = _variance(left, _point_normals(left, visibility))  # (2F, P)
+        # x and y rows of a frame see the same points: one normal matrix per frame.
+        row, row_base = _variance(features, _frame_normals(features, visibility))  # (P, F)
+        column_relative = column / column_base[:, None]
+        relative = np.maximum(column_relative[0::2], column_relative[1::2])
+        relative = np.maximum(relative, (row / row_base[:, None]).T)
+        return relative, np.maximum(np.maximum(column[0::2], column[1::2]), row.T)
 
 
 #: Entries of the (n, block, k) products :func:`_variance` forms at a time (8 MB).
 VARIANCE_BLOCK = 1_000_000
 
 
-def _variance(features: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``x_i^T G_j^{-1} x_i`` for every i (rows of ``features``) and j (columns of ``mask``),
-    G_j the normal matrix of the rows masked in for j; and ``x_i^T G^{-1} x_i`` (G over all
+def _variance(features: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``x_i^T G_j^{-1} x_i`` for every i (rows of ``features``, (n, k)) and j (the normal
+    matrices G_j, (m, k, k), of the rows some j sees); and ``x_i^T G^{-1} x_i`` (G over all
     rows, floored at 1e-300)."""
     n, k = features.shape
-    outer = (features[:, :, None] * features[:, None, :]).reshape(n, k * k)
-    normals = (mask.T @ outer).reshape(-1, k, k)
     full = features.T @ features
     ridge = 1e-12 * np.trace(full) * np.eye(k)
     inverse_full = np.linalg.inv(full + ridge)
@@ -542,11 +538,10 @@ def complete_at_rank(
         coefficients = basis.T @ centred  # (r, P)
     left, right = basis, coefficients
     data = np.where(mask, W, 0.0)
-    weights = mask.astype(np.float64)
     for _ in range(als_sweeps):
-        right = _solve_columns(left, data - translation[:, None] * weights, weights)
-        augmented = _solve_columns(
-            np.vstack([right, np.ones((1, right.shape[1]))]).T, data.T, weights.T
+        right = _solve_points(left, data - translation[:, None] * mask, visibility)
+        augmented = _solve_frames(
+            np.vstack([right, np.ones((1, right.shape[1]))]).T, data, visibility
         )  # (r + 1, 2F)
         left, translation = augmented[:-1].T, augmented[-1].copy()
     return LowRank(left=np.ascontiguousarray(left), right=right, translation=translation)
@@ -595,7 +590,7 @@ def exact_model(W: np.ndarray, visibility: np.ndarray) -> LowRank | None:
     held = hold_out(seen, rng)
     if not held.any():
         return None
-    training, held_rows = expand_mask(seen & ~held), expand_mask(held)
+    training, held_rows = seen & ~held, expand_mask(held)
     energy = _centred_energy(sample, expand_mask(seen))
     candidates = window_subspace.column_spaces(W[:, fitting], visibility[:, fitting])
     for basis, rank in itertools.islice(candidates, EXACT_CANDIDATES):
@@ -611,9 +606,9 @@ def exact_model(W: np.ndarray, visibility: np.ndarray) -> LowRank | None:
             continue
         if size > rank:
             left = _trimmed(W[:, fitting], visibility[:, fitting], left, rank)
-        left = _exact_span(left, _solve_columns(left, *_masked(W, visibility, fitting)))
-        right = _solve_columns(left, np.where(training, sample, 0.0),
-                               training.astype(np.float64), EXACT_RIDGE)  # fmt: skip
+        left = _exact_span(left, _solve_points(left, *_masked(W, visibility, fitting)))
+        right = _solve_points(left, np.where(expand_mask(training), sample, 0.0), training,
+                              EXACT_RIDGE)  # fmt: skip
         error = float(np.mean((left @ right - sample)[held_rows] ** 2))
         if error <= EXACT_MODEL_ERROR * energy:
             break
@@ -621,10 +616,9 @@ def exact_model(W: np.ndarray, visibility: np.ndarray) -> LowRank | None:
         return None
     # The translation apart, from the fitting points (their coefficients are exact); then
     # every point's coefficients in the centred part, of one dimension fewer than ``left``.
-    left, translation = _centred_part(left, _solve_columns(left, *_masked(W, visibility, fitting)))
-    mask = expand_mask(visibility)
-    data = np.where(mask, W - translation[:, None], 0.0)
-    right = _solve_columns(left, data, mask.astype(np.float64), EXACT_RIDGE)
+    left, translation = _centred_part(left, _solve_points(left, *_masked(W, visibility, fitting)))
+    data = np.where(expand_mask(visibility), W - translation[:, None], 0.0)
+    right = _solve_points(left, data, visibility, EXACT_RIDGE)
     return LowRank(left=left, right=right, translation=translation, exact=True)
 
 
@@ -640,9 +634,9 @@ def _centred_energy(values: np.ndarray, mask: np.ndarray) -> float:
 def _masked(
     W: np.ndarray, visibility: np.ndarray, columns: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """The arguments of :func:`_solve_columns` for the given columns of W, exact ridge."""
-    mask = expand_mask(visibility[:, columns])
-    return np.where(mask, W[:, columns], 0.0), mask.astype(np.float64), EXACT_RIDGE
+    """The arguments of :func:`_solve_points` for the given columns of W, exact ridge."""
+    seen = visibility[:, columns]
+    return np.where(expand_mask(seen), W[:, columns], 0.0), seen, EXACT_RIDGE
 
 
 def _alternate(
@@ -656,11 +650,11 @@ def _alternate(
     exact; if it has not halved within ``patience`` sweeps, ALS has stalled.
     """
     mask = expand_mask(visibility)
-    data, weights = np.where(mask, W, 0.0), mask.astype(np.float64)
+    data = np.where(mask, W, 0.0)
     energy = float(np.mean(data[mask] ** 2))
     best, since = np.inf, 0
     for sweep in range(1, EXACT_SWEEPS + 1):
-        right = _solve_columns(left, data, weights, EXACT_RIDGE)
+        right = _solve_points(left, data, visibility, EXACT_RIDGE)
         if sweep % EXACT_CHECK_EVERY == 0:
             misfit = float(np.mean((left @ right - data)[mask] ** 2)) / energy
             if misfit <= EXACT_FIT_MISFIT:
@@ -670,7 +664,7 @@ def _alternate(
                 best, since = misfit, 0
             elif since >= patience:
                 return None
-        left = _solve_columns(right.T, data.T, weights.T, EXACT_RIDGE).T
+        left = _solve_frames(right.T, data, visibility, EXACT_RIDGE).T
     return None
 
 
@@ -688,13 +682,10 @@ def _trimmed(W: np.ndarray, visibility: np.ndarray, left: np.ndarray, smallest: 
     O(F n k^2) for the n points and each ALS sweep.
     """
     basis = np.linalg.qr(left)[0]
-    mask = expand_mask(visibility).astype(np.float64)
-    outer = (basis[:, :, None] * basis[:, None, :]).reshape(basis.shape[0], -1)
-    normals = (mask.T @ outer).reshape(-1, basis.shape[1], basis.shape[1])
-    visible = np.linalg.eigvalsh(normals)[:, 0] >= VISIBLE_DIRECTIONS**2
+    visible = np.linalg.eigvalsh(_point_normals(basis, visibility))[:, 0] >= VISIBLE_DIRECTIONS**2
     if not visible.any():
         return left
-    coefficients = _solve_columns(basis, *_masked(W, visibility, np.flatnonzero(visible)))
+    coefficients = _solve_points(basis, *_masked(W, visibility, np.flatnonzero(visible)))
     directions, values, _ = np.linalg.svd(coefficients, full_matrices=False)
     for size in range(smallest, basis.shape[1]):
         if values[size] > SPARE_GAP * values[size - 1]:
@@ -724,22 +715,79 @@ def _centred_part(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.n
     return np.ascontiguousarray(q @ (u[:, keep] * s[keep])), (left @ mean)[:, 0]
 
 
-def _solve_columns(
-    features: np.ndarray, data: np.ndarray, weights: np.ndarray, ridge: float = ALS_RIDGE
+def _solve_points(
+    left: np.ndarray, data: np.ndarray, visibility: np.ndarray, ridge: float = ALS_RIDGE
 ) -> np.ndarray:
-    """For every column j: ``argmin_x sum_i w_ij (d_ij - features_i x)^2``, as (k, m).
+    """Every point's coefficients ``argmin_x sum_i (d_ij - left_i x)^2`` over its observed rows
+    i of W, with a ridge, as (k, m).
 
-    ``data`` is zero where ``weights`` is; features (n, k), data and weights (n, m); ``ridge``
-    as in :data:`ALS_RIDGE`.
+    left (2F, k); data (2F, m), zero where unobserved; visibility (F, m), bool (x and y of a
+    frame are seen together); ``ridge`` as in :data:`ALS_RIDGE`. O(F m k^2) for the normal
+    matrices (:func:`_point_normals`), O(m k^3) for the solves.
     """
-    n, k = features.shape
-    outer = (features[:, :, None] * features[:, None, :]).reshape(n, k * k)
-    normals = (weights.T @ outer).reshape(-1, k, k)
-    # Per feature, relative to its normal-matrix diagonal had every row been seen: invariant
-    # to the scaling of either factor, relatively stronger for columns seen in few rows.
-    normals += np.diag(ridge * np.einsum("ik,ik->k", features, features) + 1e-300)
-    rhs = features.T @ data  # (k, m)
-    return np.linalg.solve(normals, rhs.T[:, :, None])[:, :, 0].T
+    normals = _point_normals(left, visibility)
+    _add_ridge(normals, left, ridge)
+    return np.linalg.solve(normals, (data.T @ left)[:, :, None])[:, :, 0].T
+
+
+def _point_normals(left: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    """Each point's ``sum_i left_i left_i^T`` over its observed rows i, (m, k, k).
+
+    left (2F, k); visibility (F, m), bool: rows 2f and 2f + 1 (x and y) are seen together, so
+    their outer products are summed once per frame before they are weighted. O(F m k^2).
+    """
+    n_rows, k = left.shape
+    frame_outer = _upper_outer(left).reshape(n_rows // 2, 2, -1).sum(axis=1)
+    return _symmetric(visibility.T.astype(np.float64) @ frame_outer, k)
+
+
+def _solve_frames(
+    features: np.ndarray, data: np.ndarray, visibility: np.ndarray, ridge: float = ALS_RIDGE
+) -> np.ndarray:
+    """Every row's coefficients ``argmin_y sum_j (d_ij - features_j y)^2`` over the points j
+    observed in it, with a ridge, as (k, 2F).
+
+    features (m, k), one row per point; data (2F, m), zero where unobserved; visibility
+    (F, m), bool. The x and y rows of a frame share their normal matrix: one per frame,
+    solved for both. O(F m k^2 + F k^3).
+    """
+    k = features.shape[1]
+    n_frames = visibility.shape[0]
+    normals = _frame_normals(features, visibility)
+    _add_ridge(normals, features, ridge)
+    rhs = (data @ features).reshape(n_frames, 2, k).transpose(0, 2, 1)  # (F, k, 2): x, y
+    return np.linalg.solve(normals, rhs).transpose(1, 0, 2).reshape(k, 2 * n_frames)
+
+
+def _frame_normals(features: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    """Each frame's ``sum_j features_j features_j^T`` over the points j it sees, (F, k, k).
+
+    features (m, k), one row per point; visibility (F, m), bool. O(F m k^2).
+    """
+    return _symmetric(visibility.astype(np.float64) @ _upper_outer(features), features.shape[1])
+
+
+def _upper_outer(features: np.ndarray) -> np.ndarray:
+    """Each row's outer product ``f_i f_i^T``, upper triangle only, (n, k (k + 1) / 2)."""
+    upper, lower = np.triu_indices(features.shape[1])
+    return features[:, upper] * features[:, lower]
+
+
+def _symmetric(upper_entries: np.ndarray, k: int) -> np.ndarray:
+    """(m, k, k) symmetric matrices from their upper triangles (m, k (k + 1) / 2)."""
+    upper, lower = np.triu_indices(k)
+    position = np.empty((k, k), dtype=np.intp)  # entry (i, j) -> its place in the triangle
+    position[upper, lower] = position[lower, upper] = np.arange(upper.size)
+    return np.take(upper_entries, position.ravel(), axis=1).reshape(-1, k, k)
+
+
+def _add_ridge(normals: np.ndarray, features: np.ndarray, ridge: float) -> None:
+    """Add to every normal matrix (m, k, k), in place, ``ridge`` times each feature's sum of
+    squares over all rows: invariant to the scaling of either factor, and relatively
+    stronger for columns seen in few rows."""
+    diagonal = ridge * np.einsum("ik,ik->k", features, features) + 1e-300
+    k = features.shape[1]
+    normals.reshape(-1, k * k)[:, :: k + 1] += diagonal
 
 
 def trusted_entries(model: LowRank, visibility: np.ndarray, *, noisy: bool = False) -> np.ndarray:

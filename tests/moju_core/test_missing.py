@@ -648,6 +648,32 @@ def test_an_exactly_low_rank_w_gets_an_exact_model_at_its_rank():
     )
 
 
+def test_the_alternating_solves_are_least_squares_on_the_observed_entries():
+    """Each point's and each row's solve against a per-column least-squares fit with the ridge
+    written out (the solves sum x and y of a frame together and use symmetric halves)."""
+    rng = np.random.default_rng(16)
+    n_frames, n_points, k, ridge = 12, 30, 4, 1e-3
+    W = rng.standard_normal((2 * n_frames, n_points))
+    visibility = rng.random((n_frames, n_points)) > 0.3
+    mask = np.repeat(visibility, 2, axis=0)
+    data = np.where(mask, W, 0.0)
+
+    def ridged(features, values, rows):
+        penalty = np.sqrt(ridge * (features**2).sum(axis=0))
+        stacked = np.vstack([features[rows], np.diag(penalty)])
+        target = np.concatenate([values[rows], np.zeros(features.shape[1])])
+        return np.linalg.lstsq(stacked, target, rcond=None)[0]
+
+    left = rng.standard_normal((2 * n_frames, k))
+    points = missing._solve_points(left, data, visibility, ridge)
+    for j in range(n_points):
+        assert_allclose(points[:, j], ridged(left, W[:, j], mask[:, j]), rtol=1e-9, atol=1e-12)
+    features = rng.standard_normal((n_points, k))
+    rows = missing._solve_frames(features, data, visibility, ridge)
+    for i in range(2 * n_frames):
+        assert_allclose(rows[:, i], ridged(features, W[i], mask[i]), rtol=1e-9, atol=1e-12)
+
+
 def test_spare_directions_of_an_exact_fit_are_cut_to_the_column_space_of_w():
     rng = np.random.default_rng(15)
     W = _low_rank_w(rng, n_rows=120, n_points=400, rank=5)  # uncentred: rank 6
@@ -659,7 +685,7 @@ def test_spare_directions_of_an_exact_fit_are_cut_to_the_column_space_of_w():
     left = np.hstack([np.linalg.svd(W, full_matrices=False)[0][:, :6], spare])
     left = left @ rng.standard_normal((8, 8))
     columns = np.arange(400)
-    coefficients = missing._solve_columns(left, *missing._masked(W, visibility, columns))
+    coefficients = missing._solve_points(left, *missing._masked(W, visibility, columns))
     observed = np.repeat(visibility, 2, axis=0)
     fitted = left @ coefficients
     assert np.abs(fitted - W)[observed].max() < 1e-6 * np.abs(W).max()
