@@ -111,8 +111,8 @@ class LoopState:
         The S#-update's vectors from one iteration to the next (:class:`moju_core.lrr.WarmStart`).
     depth_pull : ndarray of shape (F, P) or None
         The exact fit's constant term (:func:`moju_core.temporal_prior.depth_pull`), kept once
-        computed and moved with the tracks when the translation is refitted
-        (:func:`moju_core.temporal_prior.add_shifted_depth_pull`).
+        computed (the exact fit does not refit the translation:
+        :func:`moju_core.admm.reprojection_error`).
     measured : ndarray of shape (F, P), bool, or None
         With an exact fit of tracks with hidden entries, the observed entries (fitted exactly;
         the other entries of ``observed`` softly); None otherwise.

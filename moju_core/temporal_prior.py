@@ -298,30 +298,6 @@ def depth_pull(back_projected: np.ndarray, normals: np.ndarray, prior: TemporalP
     return prior.weight * np.einsum("fc,fcp->fp", normals, penalty_times(back_projected))
 
 
-def add_shifted_depth_pull(
-    pull: np.ndarray, shift: np.ndarray, normals: np.ndarray, prior: TemporalPrior
-) -> None:
-    """Add to ``pull`` the :func:`depth_pull` of ``shift[f]`` moved into the back-projection of
-    every entry, in place, without an (F, 3, P) array.
-
-    ``(D^T D S)[f] = sum_k (D^T D)[f, f + k] S[f + k]`` over the 5 diagonals, so the change
-    is the same for every point: ``sum_k gamma (D^T D)[f, f + k] n_f . shift[f + k]``. O(F P).
-
-    Parameters
-    ----------
-    pull : ndarray of shape (F, P)
-        Updated in place.
-    shift : ndarray of shape (F, 3)
-    normals : ndarray of shape (F, 3)
-    prior : TemporalPrior
-    """
-    n_frames = shift.shape[0]
-    if n_frames < 3:
-        return  # no second differences
-    moved = np.einsum("fc,fc->f", normals, penalty_times(shift[:, :, None])[:, :, 0])
-    pull += prior.weight * moved[:, None]
-
-
 def depth_step(
     back_projected: np.ndarray,
     normals: np.ndarray,

@@ -440,6 +440,36 @@ def test_the_translation_refit_keeps_the_back_projection_of_the_tracks():
     assert_allclose(rms, np.sqrt(np.mean(residual[seen] ** 2)), rtol=1e-12)
 
 
+def test_an_exact_fit_keeps_the_translation_of_the_completion():
+    """With the measured entries fitted exactly, moving a frame's translation by t and its
+    shape by -R^T t leaves every residual as it is: no refit, the tracks stay put."""
+    from moju_core import admm
+    from moju_core.loop_state import initial_state, loop_settings
+
+    rng = np.random.default_rng(5)
+    rotations = project_to_stiefel(rng.standard_normal((6, 2, 3)))
+    tracks = rng.standard_normal((6, 2, 20))
+    observed = rng.random((6, 20)) > 0.3
+    params = SolverParams(seed=0, rotations="known", smoothness=10.0)
+    params = defaults.resolve(params, 6, 20, 1.0, rotations=rotations)
+    settings = loop_settings(params, 6, 20, observed, False, exact_data=True)
+    assert settings.exact_data
+    state = initial_state(tracks, rotations, 1.0, observed, measured=observed)
+    state.shapes += rng.standard_normal(state.shapes.shape)
+    before, back_projected = state.tracks.copy(), state.back_projected.copy()
+    rms = admm.reprojection_error(state, settings)
+    assert np.array_equal(state.tracks, before)
+    assert np.array_equal(state.back_projected, back_projected)
+    residual = projection.project(rotations, state.shapes) - tracks
+    seen = np.repeat(observed[:, None, :], 2, axis=1)
+    assert_allclose(rms, np.sqrt(np.mean(residual[seen] ** 2)), rtol=1e-12)
+    # The residuals do not see the gauge: translation t into the tracks, -R^T t into the shapes.
+    t = rng.standard_normal((6, 2))
+    moved = state.shapes - np.einsum("fji,fj->fi", rotations, t)[:, :, None]
+    moved_residual = projection.project(rotations, moved) - (tracks - t[:, :, None])
+    assert_allclose(moved_residual, residual, atol=1e-12)
+
+
 def test_the_cameras_with_missing_data_use_the_well_seen_points_values():
     from moju_core import solver
 

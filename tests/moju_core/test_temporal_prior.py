@@ -318,18 +318,3 @@ def test_the_factored_band_solve_matches_lapack(n_rows, n_columns):
     rhs = rng.standard_normal((n_rows, n_columns))
     expected = cho_solve_banded((factor, False), rhs)
     assert_allclose(temporal_prior.solve_factored_bands(factor, rhs.copy()), expected, atol=1e-12)
-
-
-@pytest.mark.parametrize("n_frames", [2, 3, 5, 30])
-def test_the_shifted_pull_equals_the_pull_of_the_shifted_back_projection(n_frames):
-    """The loop keeps the exact fit's constant part when the translation refit moves the
-    tracks; it must equal recomputing it from the moved back-projection."""
-    rng = np.random.default_rng(n_frames)
-    shift = rng.standard_normal((n_frames, 3))
-    normals = rng.standard_normal((n_frames, 3))
-    prior = temporal_prior.temporal_prior(n_frames, 7.0)
-    back_projected = rng.standard_normal((n_frames, 3, 40))
-    pull = temporal_prior.depth_pull(back_projected, normals, prior)
-    temporal_prior.add_shifted_depth_pull(pull, shift, normals, prior)
-    moved = back_projected + shift[:, :, None]
-    assert_allclose(pull, temporal_prior.depth_pull(moved, normals, prior), atol=1e-12)
