@@ -32,7 +32,6 @@ P x P is formed.
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -546,27 +545,6 @@ def complete_at_rank(
         )  # (r + 1, 2F)
         left, translation = augmented[:-1].T, augmented[-1].copy()
     return LowRank(left=np.ascontiguousarray(left), right=right, translation=translation)
-
-
-def camera_model(model: LowRank, W: np.ndarray, visibility: np.ndarray) -> LowRank:
-    """The completion at a rank the camera step can use: ``model`` itself, or W fitted again
-    (:func:`complete_at_rank`) at the next multiple of 3 above its rank.
-
-    The camera step reads K = ceil(r / 3) shape bases from the rank r of its tracks
-    (:func:`moju_core.cameras.bases.choose_n_bases`), and the intersection method needs all
-    3K directions. An exact model has W's own rank, as complete tracks do; the rank chosen
-    by held-out error can fall between multiples of 3, which drops directions that the
-    cameras need: on the paper under the closing occlusion (1,000 points, seeds 109 and
-    114) rank 4 left the intersection without a rank-3 metric upgrade, the camera step fell
-    back to the rigid rotations (24-37 degrees off) and e3D was 0.26-0.28, against 0.008-0.009
-    for complete tracks.
-
-    W (2F, P), visibility (F, P) as for :func:`complete`.
-    """
-    rank = 3 * math.ceil(model.rank / 3)
-    if model.exact or rank == model.rank or 2 * rank >= min(W.shape):
-        return model
-    return complete_at_rank(W, visibility, rank)
 
 
 def exact_model(W: np.ndarray, visibility: np.ndarray) -> LowRank | None:

@@ -233,19 +233,13 @@ def _reconstruct(
     else:
         camera_tracks, camera_decomposition = centred, decomposition
         if values is not None:
-            filled, camera_values = None, values
+            filled = None
             if noise > defaults.EXACT_DATA_NOISE:
                 # With the model's values at the hidden entries, not the gap-corrected ones.
                 filled = np.where(missing.expand_mask(observed), W, values) / scale
-            else:
-                # The model's values, at a rank whose every shape basis they hold.
-                for_cameras = missing.camera_model(model, W, observed)
-                if for_cameras is not model:
-                    camera_values = for_cameras.values()
             camera_tracks, camera_decomposition = _camera_tracks(
-                camera_values, observed, reliable, scale, filled
+                values, observed, reliable, scale, filled
             )
-            camera_values = None
         estimate = cameras.estimate_cameras(
             camera_tracks,
             params.rotations,
