@@ -152,26 +152,6 @@ def _low_rank_w(rng, n_rows=60, n_points=300, rank=4):
     return left @ right + rng.standard_normal(n_rows)[:, None] * 5.0
 
 
-def test_the_camera_values_hold_every_shape_basis_the_camera_step_reads():
-    """The camera step reads ceil(r / 3) bases from rank r: a rank-4 completion of a rank-6
-    W is fitted again at rank 6 for it; a multiple of 3, or an exact model, is kept."""
-    rng = np.random.default_rng(21)
-    W = _low_rank_w(rng, rank=6)
-    visibility = rng.random((30, 300)) > 0.2
-    chosen = missing.complete_at_rank(W, visibility, 4)
-    for_cameras = missing.camera_model(chosen, W, visibility)
-    assert for_cameras.rank == 6
-    singular = np.linalg.svd(
-        for_cameras.values() - for_cameras.centroid()[:, None], compute_uv=False
-    )
-    assert singular[5] > 1e-3 * singular[0]  # the sixth direction is there
-    assert np.abs(for_cameras.values() - W).max() < 1e-3 * np.abs(W).max()
-    at_six = missing.complete_at_rank(W, visibility, 6)
-    assert missing.camera_model(at_six, W, visibility) is at_six
-    exact = replace(chosen, exact=True)
-    assert missing.camera_model(exact, W, visibility) is exact
-
-
 def test_als_recovers_an_exact_low_rank_w_with_its_translation_from_its_observed_entries():
     rng = np.random.default_rng(1)
     W = _low_rank_w(rng)
