@@ -785,9 +785,8 @@ def _add_ridge(normals: np.ndarray, features: np.ndarray, ridge: float) -> None:
     """Add to every normal matrix (m, k, k), in place, ``ridge`` times each feature's sum of
     squares over all rows: invariant to the scaling of either factor, and relatively
     stronger for columns seen in few rows."""
-    diagonal = ridge * np.einsum("ik,ik->k", features, features) + 1e-300
-    k = features.shape[1]
-    normals.reshape(-1, k * k)[:, :: k + 1] += diagonal
+    diagonal = np.arange(features.shape[1])
+    normals[:, diagonal, diagonal] += ridge * np.einsum("ik,ik->k", features, features) + 1e-300
 
 
 def trusted_entries(model: LowRank, visibility: np.ndarray, *, noisy: bool = False) -> np.ndarray:
