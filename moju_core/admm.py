@@ -437,9 +437,9 @@ def reprojection_error(state: LoopState, settings: LoopSettings) -> float:
     An exact fit has no such unknown: moving a frame's translation by ``t`` and its shape by
     ``-R_f^T t`` leaves every residual as it is, and the depth step refits the measured
     entries to any translation, so a refit would only shift the frame by the soft entries'
-    mean residual again at every iteration (about 1e-4 of the tracks' scale per iteration on
-    face3 and face4 under the closing occlusion, not falling). The translation of the
-    completion stays.
+    mean residual again at every iteration (under the closing occlusion still about 1e-4 of
+    the tracks' scale per iteration when the loop ends, on face3 and face4). The translation
+    of the completion stays.
     """
     reprojection = camera.project(state.rotations, state.shapes, out=state.reprojection)
     reprojection -= state.tracks
