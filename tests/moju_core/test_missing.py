@@ -417,19 +417,26 @@ def test_the_group_fill_fits_the_values_before_the_projection_with_hidden_frames
     assert 0 < moved < 5.0
 
 
-def test_the_translation_refit_keeps_the_back_projection_of_the_tracks():
-    from moju_core import admm
+def _masked_loop_state(exact: bool):
+    """A loop state of 6 frames x 20 points (30 % hidden at random, shapes off the tracks)
+    and its settings: the soft data term, or the exact fit with the observed entries
+    measured. Returns (rng, rotations, tracks, observed, state, settings)."""
     from moju_core.loop_state import initial_state, loop_settings
 
     rng = np.random.default_rng(5)
     rotations = project_to_stiefel(rng.standard_normal((6, 2, 3)))
     tracks = rng.standard_normal((6, 2, 20))
     observed = rng.random((6, 20)) > 0.3
-    params = SolverParams(seed=0, rotations="known", smoothness=0.0)
+    params = SolverParams(seed=0, rotations="known", smoothness=10.0 if exact else 0.0)
     params = defaults.resolve(params, 6, 20, 1.0, rotations=rotations)
-    state = initial_state(tracks, rotations, 1.0, observed)
+    settings = loop_settings(params, 6, 20, observed, False, exact_data=exact)
+    state = initial_state(tracks, rotations, 1.0, observed, measured=observed if exact else None)
     state.shapes += rng.standard_normal(state.shapes.shape)
-    settings = loop_settings(params, 6, 20, observed, False)
+    return rng, rotations, tracks, observed, state, settings
+
+
+def test_the_translation_refit_keeps_the_back_projection_of_the_tracks():
+    _, rotations, _, observed, state, settings = _masked_loop_state(exact=False)
     rms = admm.reprojection_error(state, settings)
     assert_allclose(state.back_projected, projection.back_project(rotations, state.tracks))
     # The RMS over the observed entries after the refit, computed directly: each frame's
@@ -443,19 +450,8 @@ def test_the_translation_refit_keeps_the_back_projection_of_the_tracks():
 def test_an_exact_fit_keeps_the_translation_of_the_completion():
     """With the measured entries fitted exactly, moving a frame's translation by t and its
     shape by -R^T t leaves every residual as it is: no refit, the tracks stay put."""
-    from moju_core import admm
-    from moju_core.loop_state import initial_state, loop_settings
-
-    rng = np.random.default_rng(5)
-    rotations = project_to_stiefel(rng.standard_normal((6, 2, 3)))
-    tracks = rng.standard_normal((6, 2, 20))
-    observed = rng.random((6, 20)) > 0.3
-    params = SolverParams(seed=0, rotations="known", smoothness=10.0)
-    params = defaults.resolve(params, 6, 20, 1.0, rotations=rotations)
-    settings = loop_settings(params, 6, 20, observed, False, exact_data=True)
+    rng, rotations, tracks, observed, state, settings = _masked_loop_state(exact=True)
     assert settings.exact_data
-    state = initial_state(tracks, rotations, 1.0, observed, measured=observed)
-    state.shapes += rng.standard_normal(state.shapes.shape)
     before, back_projected = state.tracks.copy(), state.back_projected.copy()
     rms = admm.reprojection_error(state, settings)
     assert np.array_equal(state.tracks, before)
