@@ -1,5 +1,6 @@
 """What each part of the noisy missing-data path does: e3D with both parts, without the
-trust-by-precision rule (:func:`moju_core.missing.trusted_entries` with ``noisy`` ignored),
+trust-by-precision rule (:func:`moju_core.completion.missing.trusted_entries` with ``noisy``
+ignored),
 and without the signal fit on the completed tracks (``solver._tries_signal_fit`` false).
 
     python benchmarks/noisy_missing_ablation.py --seeds 6 8 --noise 0.02
@@ -17,7 +18,8 @@ from typing import Any
 
 from harness import RESULTS, provenance, solve, table, write_json, write_markdown
 
-from moju_core import missing, solver
+from moju_core import solver
+from moju_core.completion import missing
 from moju_core.datasets import make_sequence, occlusion_mask
 
 CLOSING = {"band": 0.2, "lost": 0.1, "dropout": 0.02}

@@ -39,8 +39,8 @@ from harness import (
     write_markdown,
 )
 
-from moju_core import lrr
 from moju_core.cameras import projection
+from moju_core.loop import lrr
 from moju_core.metrics import e3d
 from moju_core.preprocessing import normalise
 

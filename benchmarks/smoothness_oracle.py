@@ -1,5 +1,5 @@
 """The smoothness rule against the best fixed weight: e3D of the full solve for every weight of
-``moju_core.smoothness.SMOOTHNESS_GRID`` next to the weight the rule chose.
+``moju_core.priors.smoothness.SMOOTHNESS_GRID`` next to the weight the rule chose.
 
     python benchmarks/smoothness_oracle.py                                   # hard + faces
     python benchmarks/smoothness_oracle.py --sequences face3 bumps-osc --seeds 2 3 --jobs 2
@@ -32,7 +32,7 @@ from harness import (
 from threadpoolctl import threadpool_limits
 
 from moju_core.datasets import HARD_SEQUENCE_NAMES, make_sequence
-from moju_core.smoothness import SMOOTHNESS_GRID
+from moju_core.priors.smoothness import SMOOTHNESS_GRID
 
 WEIGHTS = SMOOTHNESS_GRID
 

@@ -1,8 +1,8 @@
 """Accuracy and time of ``moju track`` on rendered videos with ground truth.
 
-Every configuration renders a synthetic sequence (``moju_core.render.render_sequence``),
+Every configuration renders a synthetic sequence (``moju_core.footage.render.render_sequence``),
 writes it as an mp4, tracks the mp4 with the first frame's true mask and the default step, and
-scores the tracks against the ground truth (``moju_core.render.score_tracks``). Time is wall
+scores the tracks against the ground truth (``moju_core.footage.render.score_tracks``). Time is wall
 clock and process CPU time of the tracking alone (decoding included, rendering excluded).
 
 The 320 x 320 videos are also reconstructed. The solvable tracks (``solvable_tracks``) on
@@ -37,10 +37,10 @@ import numpy as np
 from harness import RESULTS, provenance, table, write_json, write_markdown
 
 from moju_core import reconstruct
+from moju_core.footage.render import RenderedVideo, render_sequence, score_tracks, write_video
+from moju_core.footage.tracking import DEFAULT_STEP, Tracks, solvable_tracks, track_video
 from moju_core.metrics import e3d
 from moju_core.params import SolverParams
-from moju_core.render import RenderedVideo, render_sequence, score_tracks, write_video
-from moju_core.tracking import DEFAULT_STEP, Tracks, solvable_tracks, track_video
 
 FULL = [
     ("paper", 320, 240),

@@ -36,14 +36,19 @@ from moju_core.datasets import (
     make_sequence,
 )
 from moju_core.errors import MeasurementError
+from moju_core.footage.tracking import (
+    DEFAULT_STEP,
+    solvable_tracks,
+    tracks_measurements,
+    write_tracks,
+)
+from moju_core.footage.video import is_video_source
 from moju_core.io import Measurements, read_measurements, read_result, write_measurements
 from moju_core.io import write_result as write_result_file
 from moju_core.metrics import evaluate as evaluate_scores
 from moju_core.params import SolverParams, rotation_method
 from moju_core.ply import frame_file_name, write_ply_frames
 from moju_core.result import Diagnostics, Progress, Result
-from moju_core.tracking import DEFAULT_STEP, solvable_tracks, tracks_measurements, write_tracks
-from moju_core.video import is_video_source
 
 #: Extensions :func:`moju_core.io.write_result` understands; checked before any solving.
 RESULT_EXTENSIONS = (".npz", ".h5", ".hdf5")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from moju_core.defaults import GAP_PRECISION
-from moju_core.stopping import loop_tolerance
+from moju_core.loop.stopping import loop_tolerance
 
 #: What each stop reason of :attr:`moju_core.result.Result.stop_reason` means, for humans.
 STOP_REASONS = {
@@ -29,7 +29,7 @@ def describe_stop(
     shape gap and ``tol`` the phrase says which of the convergence tests ended the loop:
     below ``tol``; below the exact fit's precision when the loop fitted the tracks exactly
     (``exact_fit``, :attr:`moju_core.result.Diagnostics.exact_fit`;
-    :func:`moju_core.stopping.loop_tolerance`); or stalled below ``GAP_PRECISION`` (the
+    :func:`moju_core.loop.stopping.loop_tolerance`); or stalled below ``GAP_PRECISION`` (the
     precision of the S# step).
     """
     if method == "pta" and stop_reason == "converged":

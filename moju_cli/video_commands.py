@@ -1,7 +1,7 @@
 """Video commands of ``moju``: ``track``, and the rendered-video run of ``moju demo --video``.
 
 They need OpenCV (``opencv-python-headless``, the ``video`` extra), imported by
-:mod:`moju_core.tracking` and :mod:`moju_core.render` when they run.
+:mod:`moju_core.footage.tracking` and :mod:`moju_core.footage.render` when they run.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from moju_core.errors import VideoError
-from moju_core.tracking import (
+from moju_core.footage.tracking import (
     DEFAULT_STEP,
     TrackingProgress,
     Tracks,
@@ -253,7 +253,7 @@ def run_video_demo(sequence: str, n_frames: int | None, out_dir: Path, quiet: bo
     _require_opencv()
     import cv2
 
-    from moju_core.render import render_sequence, score_tracks, write_video
+    from moju_core.footage.render import render_sequence, score_tracks, write_video
 
     n_frames = DEMO_VIDEO_FRAMES if n_frames is None else n_frames
     width, height = DEMO_VIDEO_SIZE

@@ -60,7 +60,7 @@ SETTLED_MOVE_FRACTION = 1e-2
 #: no change in e3D.
 GAP_PRECISION = 1e-8
 #: Shape gap at which a loop that fits the tracks exactly
-#: (:func:`moju_core.temporal_prior.depth_step`) stops, whatever smaller ``tol`` was asked.
+#: (:func:`moju_core.priors.temporal_prior.depth_step`) stops, whatever smaller ``tol`` was asked.
 #: Nothing is shrunk away from S# once rho is large, and its Gram-matrix SVD then gives the
 #: small singular values only to about 1e-7 (face3, 800 points: the gap stalls at 1-2e-7 from
 #: iteration 140 on). e3D settles long before: stopping at 1e-5 instead of 1e-6 left it the
@@ -72,7 +72,7 @@ EXACT_GAP_PRECISION = 1e-5
 #: as converged.
 STALL_ITERATIONS = 10
 #: Approximate (windowed) rotations are refined with the shapes in every iteration while rho is
-#: below this (moju_core.admm.run, ``refine_rotations``). By then the loop's threshold
+#: below this (moju_core.loop.admm.run, ``refine_rotations``). By then the loop's threshold
 #: beta2 / rho has fallen below 1e-5 of the top singular value and the shapes have settled;
 #: 10 and 1e3 gave the same e3D on the synthetic sheets (paper 0.0125, cloth 0.039).
 ROTATION_REFINE_RHO = 1e3
@@ -96,7 +96,8 @@ MIN_DEPTH_BASIS = 3
 UNSHRINK_AFTER = 20
 #: Estimated noise variance of the scale-normalised tracks (relative to their mean square, by
 #: :func:`moju_core.spectrum.noise_variance`) up to which the loop fits complete tracks exactly
-#: and lets the temporal prior set the depths only (:func:`moju_core.temporal_prior.depth_step`):
+#: and lets the temporal prior set the depths only
+#: (:func:`moju_core.priors.temporal_prior.depth_step`):
 #: a noise of 0.3 % of the tracks' RMS. Noise-free synthetic tracks give 1e-15 to 3e-6, the
 #: paper's noise protocol at lambda_g = 0.002 already 2.5e-5 to 9e-5 (and 6e-4 at 0.01); above it
 #: the data term stays soft, since exact fits of noisy tracks put the noise into the depths.
@@ -239,7 +240,7 @@ def resolve(
         A copy with no ``None`` left among the solver's numeric fields (``n_bases`` is resolved
         by the rotation step and may stay ``None`` when rotations are known;
         ``trajectory_bases`` is resolved for method ``pta`` only; ``smoothness`` of ``moju``
-        and ``sdg`` is chosen from the data by :func:`moju_core.smoothness.choose_smoothness`
+        and ``sdg`` is chosen from the data by :func:`moju_core.priors.smoothness.choose_smoothness`
         when unset).
     """
     trajectory_length = 3 * n_frames
@@ -268,7 +269,7 @@ def resolve(
     beta3 = params.beta3 or beta1 * p
     # The deformation-only nuclear norm and the temporal prior are the project's additions to
     # the loop (docs/solver.md); bmm stays Dai et al.'s method unless asked otherwise. The
-    # smoothness of moju and sdg is chosen from the data by moju_core.smoothness and stays
+    # smoothness of moju and sdg is chosen from the data by moju_core.priors.smoothness and stays
     # None here.
     baseline = params.method in ("bmm", "pta")
     free_mean_shape = params.free_mean_shape

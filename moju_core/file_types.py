@@ -2,7 +2,7 @@
 
 Measurement and result files are told apart by their first bytes before their names (a
 browser or ``curl`` may send any name); videos, masks and image frames likewise. The file
-readers (:mod:`moju_core.io`, :mod:`moju_core.video`), the result viewer and the upload
+readers (:mod:`moju_core.io`, :mod:`moju_core.footage.video`), the result viewer and the upload
 validation of the service all read their signatures from here.
 """
 

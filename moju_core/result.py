@@ -145,24 +145,27 @@ class Diagnostics:
         Method ``"pta"`` only: the conditioning of its solve.
     signal_fit : bool
         Whether the loop fitted noisy tracks exactly after projecting them onto their signal
-        subspace (:mod:`moju_core.signal_fit`; with missing data, the completed tracks,
+        subspace (:mod:`moju_core.priors.signal_fit`; with missing data, the completed tracks,
         every entry); ``smoothness_trials`` are then the trials on the projected tracks.
     completion_rank : int or None
         With missing data, the rank of the low-rank model of W the hidden entries were
-        completed from (:func:`moju_core.missing.complete`); None when nothing was missing.
+        completed from (:func:`moju_core.completion.missing.complete`); None when nothing was
+        missing.
     exact_completion : bool
-        Whether W was found exactly of that rank (:func:`moju_core.missing.exact_model`): the
+        Whether W was found exactly of that rank
+        (:func:`moju_core.completion.missing.exact_model`): the
         cameras and the fit then treat the trusted hidden entries as measured.
     completion_unexplained : float or None
         With missing data and a completion that is not exact, the held-out error its rank
         leaves beyond the noise, relative to rank one's
-        (:attr:`moju_core.missing.RankChoice.unexplained`). Above
-        :data:`moju_core.missing.MAX_UNEXPLAINED` (an articulated body's markers) no hidden
+        (:attr:`moju_core.completion.missing.RankChoice.unexplained`). Above
+        :data:`moju_core.completion.missing.MAX_UNEXPLAINED` (an articulated body's markers) no
+        hidden
         entry is fitted as data. None otherwise.
     exact_fit : bool
         Whether the loop fitted the tracks exactly (noise-free tracks, or the signal fit's
         projection). It then stops once the shape gap is below
-        :func:`moju_core.stopping.loop_tolerance` (``EXACT_GAP_PRECISION``, 1e-5, when
+        :func:`moju_core.loop.stopping.loop_tolerance` (``EXACT_GAP_PRECISION``, 1e-5, when
         ``params.tol`` is smaller): below it the gap is rounding.
     """
 

@@ -10,23 +10,16 @@ from collections.abc import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import (
-    admm,
-    cameras,
-    clustering,
-    defaults,
-    feasibility,
-    gaps,
-    lrr,
-    missing,
-    neighbours,
-    pta,
-)
+from moju_core import cameras, defaults, feasibility, pta
 from moju_core.cameras import projection
+from moju_core.completion import gaps, missing, neighbours
 from moju_core.errors import Cancelled, MeasurementError
-from moju_core.loop_state import fits_exactly
+from moju_core.loop import admm, clustering, lrr
+from moju_core.loop.loop_state import fits_exactly
 from moju_core.params import SolverParams, rotation_method
 from moju_core.preprocessing import normalise
+from moju_core.priors.signal_fit import signal_fit
+from moju_core.priors.smoothness import choose_smoothness
 from moju_core.result import (
     Diagnostics,
     Progress,
@@ -35,8 +28,6 @@ from moju_core.result import (
     StopReason,
     TrajectoryBasisFit,
 )
-from moju_core.signal_fit import signal_fit
-from moju_core.smoothness import choose_smoothness
 from moju_core.spectrum import Spectrum, noise_variance, significant_rank, spectrum
 from moju_core.validation import check_observations, check_rotations
 
@@ -179,8 +170,9 @@ def _reconstruct(
     completion_rank, exact_completion, unexplained = None, False, None
     if observed is not None:
         # Translation, cameras, the smoothness trials and the initial groups see a low-rank
-        # completion of W (moju_core.missing), with the entries it does not determine filled
-        # from the points' neighbours (moju_core.neighbours).
+        # completion of W (moju_core.completion.missing), with the entries it does not determine
+        # filled
+        # from the points' neighbours (moju_core.completion.neighbours).
         # The noise from the fully observed blocks, relative to the completed tracks' mean
         # square; a completion less precise than a measurement of noisy tracks is not data.
         block_noise = missing.observed_noise_variance(W, observed)
@@ -195,7 +187,8 @@ def _reconstruct(
             model, W, observed, reliable, noise=block_noise or 0.0
         )
         borrowed = bool(borrowed_points.any())
-        # Hidden entries near observed frames of their track corrected by it (moju_core.gaps).
+        # Hidden entries near observed frames of their track corrected by it
+        # (moju_core.completion.gaps).
         W = gaps.filled(values, W, observed, model.gap)
         # The entries the loop fits: the observed ones, the hidden ones the low-rank model
         # predicts well and those of the borrowed points, at their model values. The
@@ -217,7 +210,7 @@ def _reconstruct(
     # Relative to the mean square of the normalised tracks, which is 1.
     noise = noise_variance(singular, centred.shape)
     if observed is not None:
-        # The filled entries' errors would count as noise (moju_core.missing).
+        # The filled entries' errors would count as noise (moju_core.completion.missing).
         noise = noise if block_noise is None else block_noise / scale**2
     exact_data = noise <= defaults.EXACT_DATA_NOISE
     if observed is not None and params.rotations != "known":
@@ -301,7 +294,7 @@ def _reconstruct(
             fit = signal_fit(tracks, rotations, params, signal_basis, choice=reuse, hook=trial_hook)
         if fit is not None:
             # Noisy tracks the soft rule kept at a weak prior: fitted exactly once projected
-            # onto their signal subspace (moju_core/signal_fit.py).
+            # onto their signal subspace (moju_core/priors/signal_fit.py).
             tracks, exact_data, smoothness_trials = fit.tracks, True, fit.trials
             fitted = None  # every entry, hidden ones at their completion, projected
             centred = tracks.reshape(2 * n_frames, n_points)
@@ -447,7 +440,8 @@ def _beyond(shapes: np.ndarray, limit: float) -> bool:
 def _tries_signal_fit(
     params: SolverParams, noise: float, rotation_source: str, exact_weight: float
 ) -> bool:
-    """Whether the solve tries the exact fit of the projected tracks (moju_core/signal_fit.py).
+    """Whether the solve tries the exact fit of the projected tracks
+    (moju_core/priors/signal_fit.py).
 
     Noisy tracks (complete, or completed where points are hidden), known cameras, a
     local-model method (moju, sdg), a soft rule that chose a weight of at most the
@@ -479,7 +473,8 @@ def _camera_points(observed: np.ndarray, reliable: np.ndarray) -> np.ndarray:
     """The points the camera step sees with missing data, (P,) bool (:data:`CAMERA_MIN_POINTS`).
 
     Points with an unreliable entry are left out: their values there come from their
-    neighbours (:func:`moju_core.neighbours.borrow_values`) and are not of the model's rank.
+    neighbours (:func:`moju_core.completion.neighbours.borrow_values`) and are not of the model's
+    rank.
     With them the camera step read the mixture as motion a single camera fit cannot explain
     and chose the windowed cameras (face3 seed 3, 2,000 points, combined occlusion: 12.0 s
     against 5.7 s, 2.9 times the complete tracks' time; e3D 0.0165, 0.0170 without them).
@@ -529,7 +524,8 @@ def _trial_tracks(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The tracks (F, 2, n) and visibility the smoothness trials fit.
 
-    With missing data, the observed entries only (:func:`moju_core.smoothness.choose_smoothness`),
+    With missing data, the observed entries only
+    (:func:`moju_core.priors.smoothness.choose_smoothness`),
     unless an exact model predicts the hidden ones (``exact_entries`` is not ``observed``):
     then the points all of whose entries it predicts or observes, complete, as on complete
     tracks (at :data:`CAMERA_MIN_POINTS` or more; the trials' masked loop cost 1.3 times the

@@ -1,8 +1,9 @@
 """Singular values of the measurements: the spectrum, its numerical rank and its noise level.
 
 The camera estimators (:mod:`moju_core.cameras`), the solver's noise estimate and the
-smoothness choice (:mod:`moju_core.smoothness`) and the low-rank completion
-(:mod:`moju_core.missing`) all read the singular values of a 2F x P matrix W. They come from
+smoothness choice (:mod:`moju_core.priors.smoothness`) and the low-rank completion
+(:mod:`moju_core.completion.missing`) all read the singular values of a 2F x P matrix W. They come
+from
 the smaller Gram matrix, ``W W^T`` (2F x 2F) or ``W^T W`` (P x P), so that the cost in the
 larger dimension is a single matrix product. Which singular values are signal is decided by
 Gavish and Donoho's optimal hard threshold for white noise of unknown level; the energy of the

@@ -12,7 +12,7 @@ from pathlib import Path
 from pydantic import AliasChoices, Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from moju_core.video import VideoLimits
+from moju_core.footage.video import VideoLimits
 
 MIB = 2**20
 GIB = 2**30

@@ -13,7 +13,7 @@ A video job holds the upload instead of ``input.npz``, and the worker adds the t
     <data_dir>/jobs/<uuid>/video.mp4       the uploaded video (.mp4, .webm or .avi, by content)
     <data_dir>/jobs/<uuid>/mask.png        the uploaded mask, when there is one
     <data_dir>/jobs/<uuid>/first_frame.png the first frame, decoded by the API at upload
-    <data_dir>/jobs/<uuid>/tracks.npz      the tracker's output (moju_core.tracking.write_tracks)
+    <data_dir>/jobs/<uuid>/tracks.npz      the tracker's output (footage.tracking.write_tracks)
     <data_dir>/jobs/<uuid>/input.npz       the tracks as solver input, written by the worker
 
 Paths are built only from :class:`uuid.UUID` objects and fixed file names: no string a user
@@ -39,6 +39,8 @@ from uuid import UUID
 import h5py
 import numpy as np
 
+from moju_core.footage.tracking import Tracks, write_tracks
+from moju_core.footage.video import VIDEO_EXTENSIONS
 from moju_core.io import (
     Measurements,
     atomic_output,
@@ -48,8 +50,6 @@ from moju_core.io import (
     write_result,
 )
 from moju_core.result import Result
-from moju_core.tracking import Tracks, write_tracks
-from moju_core.video import VIDEO_EXTENSIONS
 
 ResultFormat = Literal["h5", "npz"]
 

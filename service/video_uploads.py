@@ -8,7 +8,7 @@ there before a job exists:
 * its size against ``MOJU_MAX_VIDEO_BYTES``, before it is copied;
 * resolution, frames and duration from the container's headers against
   ``MOJU_MAX_VIDEO_WIDTH`` / ``_HEIGHT``, ``MOJU_MAX_VIDEO_FRAMES`` and
-  ``MOJU_MAX_VIDEO_SECONDS`` (:class:`moju_core.video.VideoLimits`; 413 naming the limit);
+  ``MOJU_MAX_VIDEO_SECONDS`` (:class:`moju_core.footage.video.VideoLimits`; 413 naming the limit);
 * the first two frames are decoded (a file that is no video, or holds one frame, is 422) and
   the first one is kept as PNG, for the web page;
 * the mask's size against the frames', and its grid points against ``MOJU_MAX_POINTS``.
@@ -30,8 +30,8 @@ from starlette.datastructures import UploadFile
 from moju_core import file_types
 from moju_core.errors import VideoError, VideoTooLarge
 from moju_core.feasibility import describe_bytes
-from moju_core.tracking import DEFAULT_STEP, count_grid_points
-from moju_core.video import VideoInfo, check_clip, open_video, read_mask
+from moju_core.footage.tracking import DEFAULT_STEP, count_grid_points
+from moju_core.footage.video import VideoInfo, check_clip, open_video, read_mask
 from service.schemas import InputSummary, VideoSummary
 from service.settings import Settings
 

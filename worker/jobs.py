@@ -36,16 +36,16 @@ from threadpoolctl import threadpool_limits
 
 from moju_core import feasibility
 from moju_core.errors import Cancelled, MeasurementError
-from moju_core.io import Measurements
-from moju_core.params import rotation_method
-from moju_core.result import Diagnostics, Progress, Result, Stage
-from moju_core.tracking import (
+from moju_core.footage.tracking import (
     DEFAULT_STEP,
     TrackingProgress,
     solvable_tracks,
     track_video,
     tracks_measurements,
 )
+from moju_core.io import Measurements
+from moju_core.params import rotation_method
+from moju_core.result import Diagnostics, Progress, Result, Stage
 from service.connection import connect_redis
 from service.job_store import JobStore
 from service.schemas import JobRecord

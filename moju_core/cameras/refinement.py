@@ -105,7 +105,7 @@ def fit_rotations_to_shapes(
     ``H_ab = tr((R_f E_a)^T R_f E_b M_f)`` and ``g_a = <R_f E_a, G_f>`` (E_a the generators of
     so(3)). The cost in the number of points is the two 3 x 3 and 2 x 3 products per frame.
     Used by the ADMM loop to refine approximate rotations (the windowed estimate) with the
-    shapes (see :func:`moju_core.admm.run`).
+    shapes (see :func:`moju_core.loop.admm.run`).
 
     Parameters
     ----------

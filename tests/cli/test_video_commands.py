@@ -14,8 +14,8 @@ from click.testing import CliRunner
 
 import moju_cli.video_commands as video_commands
 from moju_cli.main import cli
-from moju_core.render import render_sequence, score_tracks, write_video
-from moju_core.video import open_video
+from moju_core.footage.render import render_sequence, score_tracks, write_video
+from moju_core.footage.video import open_video
 
 N_FRAMES = 12
 
@@ -189,7 +189,7 @@ def test_reconstruct_video_writes_tracks_shapes_and_coloured_ply(files, rendered
 
 
 def test_reconstruct_image_folder_with_start_and_end(rendered, tmp_path):
-    from moju_core.render import write_image_folder
+    from moju_core.footage.render import write_image_folder
 
     folder = tmp_path / "frames"
     write_image_folder(folder, rendered.frames)

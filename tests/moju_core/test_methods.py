@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from moju_core import SolverParams, clustering, reconstruct
+from moju_core import SolverParams, reconstruct
 from moju_core.cameras import projection
 from moju_core.datasets import make_sequence
+from moju_core.loop import clustering
 from moju_core.metrics import e3d
 from moju_core.preprocessing import normalise
 

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from moju_core import SolverParams, defaults, lrr, reconstruct
+from moju_core import SolverParams, defaults, reconstruct
 from moju_core.datasets import make_sequence
-from moju_core.loop_state import loop_settings
+from moju_core.loop import lrr
+from moju_core.loop.loop_state import loop_settings
 from moju_core.metrics import e3d
 from moju_core.spectrum import significant_rank
 

@@ -425,7 +425,7 @@ def test_video_upload_through_the_page(
     with the tracks beside the 3D shape."""
     import cv2
 
-    from moju_core.render import render_sequence, write_video
+    from moju_core.footage.render import render_sequence, write_video
 
     n_frames, (width, height) = 8, (96, 72)
     rendered = render_sequence("paper", width=width, height=height, n_frames=n_frames)

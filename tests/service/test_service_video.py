@@ -20,9 +20,9 @@ from fastapi.testclient import TestClient
 from plyfile import PlyData
 from redis import Redis
 
-from moju_core.render import render_sequence, write_video
-from moju_core.tracking import count_grid_points
-from moju_core.video import open_video
+from moju_core.footage.render import render_sequence, write_video
+from moju_core.footage.tracking import count_grid_points
+from moju_core.footage.video import open_video
 from service.app import create_app
 from service.job_store import JobStore
 from service.settings import Settings

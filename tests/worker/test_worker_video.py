@@ -11,9 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
+from moju_core.footage.render import render_sequence, write_video
+from moju_core.footage.tracking import count_grid_points
 from moju_core.params import SolverParams
-from moju_core.render import render_sequence, write_video
-from moju_core.tracking import count_grid_points
 from service.schemas import InputSummary, JobRecord, VideoSummary
 from service.states import JobStatus
 from service.storage import INPUT_NAME, TRACKS_NAME

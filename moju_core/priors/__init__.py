@@ -1,0 +1,8 @@
+"""Priors on the shapes beyond the low-rank model.
+
+* :mod:`~moju_core.priors.temporal_prior` - the temporal smoothness prior on the shapes
+  and the depth steps that solve the S-update with it;
+* :mod:`~moju_core.priors.smoothness` - choosing the prior's weight from short trial solves;
+* :mod:`~moju_core.priors.signal_fit` - noisy tracks fitted exactly once projected onto
+  their signal subspace.
+"""
