@@ -1,7 +1,7 @@
 """What each part of the noisy missing-data path does: e3D with both parts, without the
 trust-by-precision rule (:func:`moju_core.completion.missing.trusted_entries` with ``noisy``
 ignored),
-and without the signal fit on the completed tracks (``solver._tries_signal_fit`` false).
+and without the signal fit on the completed tracks (``solve_plan.tries_signal_fit`` false).
 
     python benchmarks/noisy_missing_ablation.py --seeds 6 8 --noise 0.02
 
@@ -18,7 +18,7 @@ from typing import Any
 
 from harness import RESULTS, provenance, solve, table, write_json, write_markdown
 
-from moju_core import solver
+from moju_core import solve_plan
 from moju_core.completion import missing
 from moju_core.datasets import make_sequence, occlusion_mask
 
@@ -28,16 +28,16 @@ VARIANTS = ("both", "no trust rule", "no signal fit")
 
 def run_variant(data: Any, seed: int, variant: str) -> float:
     """e3D of one solve with the named part switched off (restored afterwards)."""
-    trusted, tries = missing.trusted_entries, solver._tries_signal_fit
+    trusted, tries = missing.trusted_entries, solve_plan.tries_signal_fit
     if variant == "no trust rule":
         missing.trusted_entries = lambda model, seen, noisy=False: trusted(model, seen)
     if variant == "no signal fit":
-        solver._tries_signal_fit = lambda *args: False
+        solve_plan.tries_signal_fit = lambda *args: False
     try:
         visibility = occlusion_mask(data, **CLOSING, seed=seed)
         return solve(data, "moju", seed=seed, visibility=visibility)["e3d"]
     finally:
-        missing.trusted_entries, solver._tries_signal_fit = trusted, tries
+        missing.trusted_entries, solve_plan.tries_signal_fit = trusted, tries
 
 
 def main(argv: list[str] | None = None) -> int:

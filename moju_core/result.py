@@ -16,6 +16,7 @@ from typing import Any, Literal, get_args
 import numpy as np
 
 from moju_core.params import SolverParams
+from moju_core.solve_plan import SolvePlan
 
 #: How the rotations of a solve were obtained: supplied (``"known"``) or estimated by one of
 #: the methods of :func:`moju_core.cameras.estimate_cameras` (``"auto"`` resolves to one).
@@ -167,6 +168,9 @@ class Diagnostics:
         projection). It then stops once the shape gap is below
         :func:`moju_core.loop.stopping.loop_tolerance` (``EXACT_GAP_PRECISION``, 1e-5, when
         ``params.tol`` is smaller): below it the gap is rounding.
+    plan : SolvePlan or None
+        Every decision the solver took from the data (:mod:`moju_core.solve_plan`); None for
+        results built without it and for files written before it was stored.
     """
 
     n_groups_used: int
@@ -183,6 +187,7 @@ class Diagnostics:
     exact_completion: bool = False
     completion_unexplained: float | None = None
     exact_fit: bool = False
+    plan: SolvePlan | None = None
 
     def __post_init__(self) -> None:
         if self.rotation_source not in get_args(RotationSource):
@@ -213,6 +218,9 @@ class Diagnostics:
         fit = known.get("trajectory_basis")
         if fit is not None:
             known["trajectory_basis"] = TrajectoryBasisFit(**fit)
+        plan = known.get("plan")
+        if plan is not None:
+            known["plan"] = SolvePlan(**plan)
         return cls(**known)
 
 

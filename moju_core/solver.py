@@ -2,19 +2,25 @@
 
 from __future__ import annotations
 
-import math
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import cameras, defaults, feasibility, pta
+from moju_core import cameras, defaults, feasibility, pta, solve_plan
 from moju_core.cameras import projection
-from moju_core.completion import gaps, missing, neighbours
+from moju_core.completion.completed import (
+    CompletedTracks,
+    camera_tracks,
+    complete_tracks,
+    trial_tracks,
+)
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.loop import admm, clustering, lrr
+from moju_core.loop.data_terms import DataTerm, beyond, choose_term
 from moju_core.loop.loop_state import fits_exactly
 from moju_core.params import SolverParams, rotation_method
 from moju_core.preprocessing import normalise
@@ -28,6 +34,7 @@ from moju_core.result import (
     StopReason,
     TrajectoryBasisFit,
 )
+from moju_core.solve_plan import SolvePlan
 from moju_core.spectrum import Spectrum, noise_variance, significant_rank, spectrum
 from moju_core.validation import check_observations, check_rotations
 
@@ -147,15 +154,51 @@ def _reconstruct(
     visibility: np.ndarray | None,
     callback: ProgressCallback | None,
 ) -> Result:
+    """Validate, complete, estimate the cameras, plan, run the loop, package the result."""
     params = params if params is not None else SolverParams()
     params = _resolve_rotation_method(params, rotations is not None)
     report = _Reporter(callback, params.max_iter)
-    timings: dict[str, float] = {}
     start = time.perf_counter()
-
     report("validating")
-    W, visibility = check_observations(W, visibility)
+    W, visibility, rotations = _validate(W, visibility, rotations, params)
     observed = None if visibility.all() else visibility
+    completed = None if observed is None else complete_tracks(W, observed)
+    measured_tracks = W
+    if completed is not None:
+        W = completed.W
+    centred, scale = normalise(W)
+
+    report("rotations")
+    tic = time.perf_counter()
+    tracks = _Tracks.measure(centred, scale, completed)
+    estimate = _estimate_cameras(tracks, completed, measured_tracks, rotations, params)
+    params = params.model_copy(update={"rotations": estimate.source})
+    timings = {"rotations": time.perf_counter() - tic}
+
+    report("initialising")
+    tic = time.perf_counter()
+    solve = _plan(tracks, completed, estimate, params, report)
+    report.expected = defaults.expected_iterations(solve.params)
+    timings["initialise"] = time.perf_counter() - tic
+
+    tic = time.perf_counter()
+    out = _run(solve, estimate, report)
+    timings["iterate"] = time.perf_counter() - tic
+    report("finishing", out.n_iter)
+    timings["total"] = time.perf_counter() - start
+    return _package(out, solve, estimate, tracks, completed, visibility, timings)
+
+
+def _validate(
+    W: np.ndarray,
+    visibility: np.ndarray | None,
+    rotations: np.ndarray | None,
+    params: SolverParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """W (2F, P) and visibility (F, P) checked, known rotations (F, 2, 3) checked, and the
+    parameters checked against the sizes (with the messages the service gives at
+    submission, :mod:`moju_core.feasibility`)."""
+    W, visibility = check_observations(W, visibility)
     n_frames, n_points = W.shape[0] // 2, W.shape[1]
     if params.rotations == "known":
         if rotations is None:
@@ -164,212 +207,312 @@ def _reconstruct(
                 f"({n_frames}, 2, 3), or choose rotations='auto' to estimate them"
             )
         rotations = check_rotations(rotations, n_frames)
-    # Sizes first, with the messages the service gives at submission (moju_core.feasibility).
     feasibility.check_fit(params, n_frames, n_points, has_rotations=rotations is not None)
-    values, fitted, borrowed, exact_entries = None, observed, False, observed
-    completion_rank, exact_completion, unexplained = None, False, None
-    if observed is not None:
-        # Translation, cameras, the smoothness trials and the initial groups see a low-rank
-        # completion of W (moju_core.completion.missing), with the entries it does not determine
-        # filled
-        # from the points' neighbours (moju_core.completion.neighbours).
-        # The noise from the fully observed blocks, relative to the completed tracks' mean
-        # square; a completion less precise than a measurement of noisy tracks is not data.
-        block_noise = missing.observed_noise_variance(W, observed)
-        model = missing.complete(W, observed, noise=block_noise)
-        completion_rank, exact_completion = model.rank, model.exact
-        unexplained = None if model.exact else model.unexplained
-        noisy = block_noise is not None and (
-            block_noise / normalise(model.fill(W, observed))[1] ** 2 > defaults.EXACT_DATA_NOISE
-        )
-        reliable = missing.trusted_entries(model, observed, noisy=noisy)
-        values, borrowed_points = neighbours.borrow_values(
-            model, W, observed, reliable, noise=block_noise or 0.0
-        )
-        borrowed = bool(borrowed_points.any())
-        # Hidden entries near observed frames of their track corrected by it
-        # (moju_core.completion.gaps).
-        W = gaps.filled(values, W, observed, model.gap)
-        # The entries the loop fits: the observed ones, the hidden ones the low-rank model
-        # predicts well and those of the borrowed points, at their model values. The
-        # smoothness trials fit the observed ones only: their rule compares misfits of ~1e-4
-        # of the tracks' energy, and the model's errors at trusted entries (rolling sheet,
-        # 10 % dropout: 0.004 of the RMS) would count as misfit (it chose 0.1 instead of 100).
-        fitted = reliable | borrowed_points[None, :]
-        fitted = None if fitted.all() else fitted
-        # An exact model predicts its trusted entries as exactly as they would be measured.
-        exact_entries = reliable if exact_completion else observed
-    centred, scale = normalise(W)
+    return W, visibility, rotations
 
-    report("rotations")
-    tic = time.perf_counter()
-    # Through the smaller of W W^T (2F x 2F) and W^T W (P x P): O(F P min(F, P)).
-    decomposition = spectrum(centred)
-    singular = decomposition.singular
-    signal_basis = decomposition.left[:, : significant_rank(singular, centred.shape)]
-    # Relative to the mean square of the normalised tracks, which is 1.
-    noise = noise_variance(singular, centred.shape)
-    if observed is not None:
-        # The filled entries' errors would count as noise (moju_core.completion.missing).
-        noise = noise if block_noise is None else block_noise / scale**2
-    exact_data = noise <= defaults.EXACT_DATA_NOISE
-    if observed is not None and params.rotations != "known":
-        # An exact fit trusts the cameras. Those estimated from an exact model are as good as
-        # from complete tracks; from another completion they are degrees off (face4's 41
-        # markers: 2.7-5.8), and an exact fit puts that error into the depths even where
-        # every hidden entry is trusted (e3D 0.11-0.33 against 0.024-0.072 soft), as it did
-        # with only the observed entries fitted exactly (face3, combined occlusion, seeds
-        # 2 / 3: 0.0215 / 0.0170 -> 0.109 / diverged; docs/solver.md, "Missing data").
-        exact_data = exact_data and exact_completion
+
+@dataclass(eq=False)
+class _Tracks:
+    """The centred, scale-normalised tracks and what the solve measures on them.
+
+    ``centred`` (2F, P) and ``per_frame`` (F, 2, P) share memory until a signal fit
+    replaces them; ``noise`` is relative to the tracks' mean square (1).
+    """
+
+    centred: np.ndarray
+    scale: float
+    decomposition: Spectrum
+    signal_basis: np.ndarray
+    noise: float
+    per_frame: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        n_frames = self.centred.shape[0] // 2
+        self.per_frame = self.centred.reshape(n_frames, 2, self.centred.shape[1])
+
+    @classmethod
+    def measure(
+        cls, centred: np.ndarray, scale: float, completed: CompletedTracks | None
+    ) -> _Tracks:
+        """Spectrum, signal subspace and noise; O(F P min(F, P)) through the smaller Gram
+        matrix. With missing data the noise of the fully observed blocks: the filled entries'
+        errors would count as noise."""
+        decomposition = spectrum(centred)
+        singular = decomposition.singular
+        basis = decomposition.left[:, : significant_rank(singular, centred.shape)]
+        noise = noise_variance(singular, centred.shape)
+        if completed is not None and completed.noise is not None:
+            noise = completed.noise / scale**2
+        return cls(centred, scale, decomposition, basis, noise)
+
+
+def _estimate_cameras(
+    tracks: _Tracks,
+    completed: CompletedTracks | None,
+    measured_tracks: np.ndarray,
+    rotations: np.ndarray | None,
+    params: SolverParams,
+) -> cameras.CameraEstimate:
+    """The known rotations, or an estimate (:func:`moju_core.cameras.estimate_cameras`).
+
+    With missing data the estimator sees the points of
+    :func:`moju_core.completion.completed.camera_tracks`.
+    """
     if params.rotations == "known":
-        estimate = cameras.CameraEstimate(rotations, "known")
-    else:
-        camera_tracks, camera_decomposition = centred, decomposition
-        if values is not None:
-            filled = None
-            if noise > defaults.EXACT_DATA_NOISE:
-                # With the model's values at the hidden entries, not the gap-corrected ones.
-                filled = np.where(missing.expand_mask(observed), W, values) / scale
-            camera_tracks, camera_decomposition = _camera_tracks(
-                values, observed, reliable, scale, filled
-            )
-        estimate = cameras.estimate_cameras(
-            camera_tracks,
-            params.rotations,
-            n_bases=params.n_bases,
-            seed=params.seed,
-            decomposition=camera_decomposition,
+        return cameras.CameraEstimate(rotations, "known")
+    camera_input, decomposition = tracks.centred, tracks.decomposition
+    if completed is not None:
+        noisy = tracks.noise > defaults.EXACT_DATA_NOISE
+        camera_input, decomposition = camera_tracks(
+            completed, measured_tracks, tracks.scale, noisy
         )
-        rotations = estimate.rotations
-        # Result.params records what "auto" chose, so that it can be run again as it ran.
-        params = params.model_copy(update={"rotations": estimate.source})
-        camera_tracks = None
-    # The loop does not read the model's values: a (2F, P) copy fewer while it runs.
-    values = None
-    n_bases = estimate.n_bases if estimate.n_bases is not None else params.n_bases
-    timings["rotations"] = time.perf_counter() - tic
+    return cameras.estimate_cameras(
+        camera_input,
+        params.rotations,
+        n_bases=params.n_bases,
+        seed=params.seed,
+        decomposition=decomposition,
+    )
 
-    report("initialising")
-    tic = time.perf_counter()
-    tracks = centred.reshape(n_frames, 2, n_points)
-    initial = np.einsum("fji,fjp->fip", rotations, tracks).reshape(n_frames, 3 * n_points)
-    top = lrr.top_singular_value(initial)
+
+@dataclass(eq=False)
+class _Solve:
+    """What the loop runs: the plan, the resolved parameters, the tracks it fits (F, 2, P),
+    the entries it fits (F, P) bool or None, its data term, the soft term to fall back to, and
+    the smoothness trials made."""
+
+    plan: SolvePlan
+    params: SolverParams
+    tracks: np.ndarray
+    fitted: np.ndarray | None
+    term: DataTerm | None
+    fallback: DataTerm | None
+    trials: list[tuple[float, float]]
+    features: np.ndarray | None
+
+
+def _plan(
+    tracks: _Tracks,
+    completed: CompletedTracks | None,
+    estimate: cameras.CameraEstimate,
+    params: SolverParams,
+    report: _Reporter,
+) -> _Solve:
+    """Resolve the parameters, choose the prior's weight and the data term: the plan."""
+    n_frames, _, n_points = tracks.per_frame.shape
+    rotations = estimate.rotations
+    initial = np.einsum("fji,fjp->fip", rotations, tracks.per_frame)
+    top = lrr.top_singular_value(initial.reshape(n_frames, 3 * n_points))
     del initial  # (F, 3P): do not hold it through the loop
     derive_unshrunk = params.unshrunk_values is None
-    signal_rank = signal_basis.shape[1]
+    signal_rank = tracks.signal_basis.shape[1]
+    n_bases = estimate.n_bases if estimate.n_bases is not None else params.n_bases
     params = defaults.resolve(
-        params, n_frames, n_points, top, rotations=rotations, noise=noise, signal_rank=signal_rank
+        params,
+        n_frames,
+        n_points,
+        top,
+        rotations=rotations,
+        noise=tracks.noise,
+        signal_rank=signal_rank,
     )
     params = params.model_copy(update={"n_bases": n_bases})
-    # Again with the values derived from the data.
-    feasibility.check_fit(params, n_frames, n_points, has_rotations=True)
-    smoothness_trials: list[tuple[float, float]] = []
+    completion = _completion_kind(completed)
+    exact_data = solve_plan.exact_data(tracks.noise, completion, params.rotations)
+    fitted = None if completed is None else completed.fitted
+    fitted_tracks = tracks.per_frame
+    trials: list[tuple[float, float]] = []
     signal_fitted = False
     if params.smoothness is None:
-
-        def trial_hook(iteration: int, gap: float, rho: float) -> bool:
-            report("initialising")  # raises Cancelled when the callback asks to stop
-            return False
-
-        trial_tracks, trial_observed = _trial_tracks(tracks, observed, exact_entries)
-        choice = choose_smoothness(
-            trial_tracks,
-            rotations,
-            params,
-            signal_basis,
-            refine_rotations=estimate.refine,
-            hook=trial_hook,
-            observed=trial_observed,
-        )
-        del trial_tracks
+        choice, fit = _choose_prior(tracks, completed, estimate, params, exact_data, report)
+        trials = choice.trials
         exact = fits_exactly(exact_data, estimate.refine, defaults.MIN_DEPTH_PRIOR)
-        smoothness_trials = choice.trials
-        weight = choice.exact_weight if exact else choice.weight
-        params = params.model_copy(update={"smoothness": weight})
-        fit = None
-        if _tries_signal_fit(params, noise, estimate.source, choice.exact_weight):
-            # With missing data the trials fitted the observed entries only: the projected
-            # completed tracks need their own.
-            reuse = choice if observed is None else None
-            fit = signal_fit(tracks, rotations, params, signal_basis, choice=reuse, hook=trial_hook)
+        params = params.model_copy(
+            update={"smoothness": choice.exact_weight if exact else choice.weight}
+        )
         if fit is not None:
             # Noisy tracks the soft rule kept at a weak prior: fitted exactly once projected
-            # onto their signal subspace (moju_core/priors/signal_fit.py).
-            tracks, exact_data, smoothness_trials = fit.tracks, True, fit.trials
-            fitted = None  # every entry, hidden ones at their completion, projected
-            centred = tracks.reshape(2 * n_frames, n_points)
+            # onto their signal subspace, every entry (hidden ones at their completion).
+            fitted_tracks, exact_data, trials, fitted = fit.tracks, True, fit.trials, None
+            tracks.per_frame = fit.tracks
+            tracks.centred = fit.tracks.reshape(2 * n_frames, n_points)
             params = params.model_copy(update={"smoothness": fit.smoothness})
             if derive_unshrunk and params.free_mean_shape:
                 unshrunk = defaults.unshrunk_values(rotations, signal_rank)
                 params = params.model_copy(update={"unshrunk_values": unshrunk})
         signal_fitted = fit is not None
-    measured = None
-    if (fitted is not None or borrowed) and not signal_fitted:
-        if fits_exactly(exact_data, estimate.refine, params.smoothness or 0.0):
-            # Known cameras or an exact model (exact_data above): the observed entries
-            # exactly (and the trusted ones of an exact model), the other trusted and the
-            # borrowed hidden ones softly at their completion, the rest free
-            # (temporal_prior.masked_depth_step). Where every hidden entry is trusted and
-            # none borrowed, all are fitted exactly as data.
-            measured = exact_entries
     if derive_unshrunk:
         unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness)
         params = params.model_copy(update={"unshrunk_values": unshrunk})
+    exact = fits_exactly(exact_data, estimate.refine, params.smoothness)
+    masked = (
+        exact and not signal_fitted and completed is not None
+        and (completed.fitted is not None or completed.borrowed)
+    )
+    term_name = solve_plan.data_term_name(
+        params.method, exact, masked, estimate.refine, params.smoothness
+    )
+    plan = SolvePlan(
+        method=params.method,
+        n_frames=n_frames,
+        n_points=n_points,
+        observed_fraction=1.0 if completed is None else float(completed.observed.mean()),
+        noise=float(tracks.noise),
+        completion=completion,
+        camera_source=estimate.source,
+        refine_rotations=estimate.refine and params.method != "pta",
+        smoothness=float(params.smoothness),
+        signal_fit=signal_fitted,
+        data_term=term_name,
+    )
+    term, fallback = _terms(plan, fitted, completed, fitted_tracks, exact)
     features = None
     if params.method not in ("bmm", "pta") and params.n_groups > 1:
-        features = clustering.track_features(centred)
-    report.expected = defaults.expected_iterations(params)
-    timings["initialise"] = time.perf_counter() - tic
+        features = clustering.track_features(tracks.centred)
+    return _Solve(plan, params, fitted_tracks, fitted, term, fallback, trials, features)
 
-    tic = time.perf_counter()
 
-    # Iterations of loops already run: a second loop's progress continues from the first's.
+def _completion_kind(completed: CompletedTracks | None) -> solve_plan.Completion:
+    if completed is None:
+        return "none"
+    return "exact" if completed.exact else "approximate"
+
+
+def _choose_prior(
+    tracks: _Tracks,
+    completed: CompletedTracks | None,
+    estimate: cameras.CameraEstimate,
+    params: SolverParams,
+    exact_data: bool,
+    report: _Reporter,
+):
+    """The temporal prior's weight from trial solves
+    (:func:`moju_core.priors.smoothness.choose_smoothness`), and the signal fit of noisy
+    tracks when the plan tries it (:func:`moju_core.priors.signal_fit.signal_fit`)."""
+
+    def trial_hook(iteration: int, gap: float, rho: float) -> bool:
+        report("initialising")  # raises Cancelled when the callback asks to stop
+        return False
+
+    observed = None if completed is None else completed.observed
+    exact_entries = None if completed is None else completed.exact_entries
+    fitted, fitted_observed = trial_tracks(tracks.per_frame, observed, exact_entries)
+    choice = choose_smoothness(
+        fitted,
+        estimate.rotations,
+        params,
+        tracks.signal_basis,
+        refine_rotations=estimate.refine,
+        hook=trial_hook,
+        observed=fitted_observed,
+    )
+    del fitted
+    exact = fits_exactly(exact_data, estimate.refine, defaults.MIN_DEPTH_PRIOR)
+    weight = choice.exact_weight if exact else choice.weight
+    fit = None
+    if solve_plan.tries_signal_fit(
+        params.method, tracks.noise, estimate.source, weight, choice.exact_weight
+    ):
+        # With missing data the trials fitted the observed entries only: the projected
+        # completed tracks need their own.
+        reuse = choice if completed is None else None
+        fit = signal_fit(
+            tracks.per_frame,
+            estimate.rotations,
+            params.model_copy(update={"smoothness": weight}),
+            tracks.signal_basis,
+            choice=reuse,
+            hook=trial_hook,
+        )
+    return choice, fit
+
+
+#: A reconstructed point further from its frame's centroid than this many times the largest
+#: distance of an observed track from the image centroid is off the object: the masked exact
+#: fit has gone astray (it does not come back) and the solve falls back to the soft fit.
+#: Solves that stay on the object stay within about 2.4 times it.
+FLUNG_FACTOR = 5.0
+
+
+def _terms(
+    plan: SolvePlan,
+    fitted: np.ndarray | None,
+    completed: CompletedTracks | None,
+    tracks: np.ndarray,
+    exact: bool,
+) -> tuple[DataTerm | None, DataTerm | None]:
+    """The loop's data term and, for the masked exact fit, the soft term it falls back to."""
+    if plan.method == "pta":
+        return None, None
+    n_frames, n_points = plan.n_frames, plan.n_points
+    banded = plan.refine_rotations and plan.smoothness > 0
+    if plan.data_term != "masked-exact":
+        term = choose_term(n_frames, n_points, fitted, exact=exact, banded_prior=banded)
+        return term, None
+    limit = FLUNG_FACTOR * _image_reach(tracks, completed.observed)
+    term = choose_term(
+        n_frames, n_points, fitted, exact=True, measured=completed.exact_entries, limit=limit
+    )
+    return term, choose_term(n_frames, n_points, fitted, banded_prior=banded)
+
+
+def _image_reach(tracks: np.ndarray, observed: np.ndarray | None) -> float:
+    """The largest distance of an observed track (F, 2, P), centred, from its image's centre."""
+    image = np.linalg.norm(tracks, axis=1)  # (F, P)
+    return float(image.max() if observed is None else image[observed].max())
+
+
+def _run(solve: _Solve, estimate: cameras.CameraEstimate, report: _Reporter) -> admm.LoopOutput:
+    """The loop (or method ``pta``'s closed form); a masked exact fit that goes astray is
+    solved again with the soft term, its progress continuing from the first loop's."""
     done = 0
 
     def hook(iteration: int, gap: float, rho: float) -> bool:
         report("iterating", done + iteration, gap, rho)
         return False
 
-    # A masked exact fit that throws hidden entries off the object is abandoned as soon as it
-    # does (it does not come back: face3 seed 92 grew twofold per iteration to 1e5 times the
-    # object and ran to max_iter), and solved again softly below.
-    limit = FLUNG_FACTOR * _image_reach(tracks, observed)
-
-    def loop(exact: bool, held: np.ndarray | None) -> admm.LoopOutput:
-        return admm.run(
-            tracks,
-            rotations,
-            params,
-            features=features,
-            hook=hook,
-            refine_rotations=estimate.refine,
-            observed=fitted,
-            exact_data=exact,
-            measured=held,
-            abandon=None if held is None else (lambda shapes: _beyond(shapes, limit)),
+    if solve.plan.method == "pta":
+        return _trajectory_basis(
+            solve.tracks, estimate.rotations, solve.params, hook, solve.fitted
         )
+    loop_cameras = admm.LoopCameras(estimate.rotations, estimate.refine)
+    out = admm.run(
+        solve.tracks, loop_cameras, solve.params, solve.term, features=solve.features, hook=hook
+    )
+    if solve.fallback is not None and beyond(out.shapes, solve.term.limit):
+        warnings.warn(
+            "the exact fit of the observed entries threw hidden entries far off the "
+            f"object (more than {FLUNG_FACTOR:g} times the largest image distance from "
+            "its centre): solved again with the observed entries fitted softly",
+            RuntimeWarning,
+            stacklevel=4,
+        )
+        done = out.n_iter
+        report.expected = done + defaults.expected_iterations(solve.params)
+        out = admm.run(
+            solve.tracks,
+            loop_cameras,
+            solve.params,
+            solve.fallback,
+            features=solve.features,
+            hook=hook,
+        )
+    return out
 
-    if params.method == "pta":
-        out = _trajectory_basis(tracks, rotations, params, hook, fitted)
-    else:
-        out = loop(exact_data, measured)
-        if measured is not None and _beyond(out.shapes, limit):
-            warnings.warn(
-                "the exact fit of the observed entries threw hidden entries far off the "
-                f"object (more than {FLUNG_FACTOR:g} times the largest image distance from "
-                "its centre): solved again with the observed entries fitted softly",
-                RuntimeWarning,
-                stacklevel=3,
-            )
-            done = out.n_iter
-            report.expected = done + defaults.expected_iterations(params)
-            out = loop(False, None)
-    timings["iterate"] = time.perf_counter() - tic
 
-    report("finishing", out.n_iter)
+def _package(
+    out: admm.LoopOutput,
+    solve: _Solve,
+    estimate: cameras.CameraEstimate,
+    tracks: _Tracks,
+    completed: CompletedTracks | None,
+    visibility: np.ndarray,
+    timings: dict[str, float],
+) -> Result:
+    """The public :class:`Result`: shapes back in the input's units, each frame centred."""
+    scale = tracks.scale
     shapes = out.shapes * scale
     shapes -= shapes.mean(axis=2, keepdims=True)
-    timings["total"] = time.perf_counter() - start
     return Result(
         shapes=np.ascontiguousarray(shapes.transpose(0, 2, 1)),
         rotations=out.rotations,
@@ -380,7 +523,7 @@ def _reconstruct(
             "nuclear_norm": out.history["nuclear_norm"] * scale,
         },
         timings=timings,
-        params=params,
+        params=solve.params,
         n_iter=out.n_iter,
         stop_reason=out.stop_reason,
         scale=scale,
@@ -389,154 +532,22 @@ def _reconstruct(
             n_groups_used=out.n_groups,
             rotation_source=estimate.source,
             rotation_window=estimate.window,
-            rotations_refined=estimate.refine and params.method != "pta",
+            rotations_refined=solve.plan.refine_rotations,
             rotation_rigidity=None
             if estimate.rigidity is None
             else RotationRigidity(**estimate.rigidity),
-            noise_variance=float(noise * scale**2),
+            noise_variance=float(tracks.noise * scale**2),
             observed_fraction=float(visibility.mean()),
-            smoothness_trials=tuple(smoothness_trials),
-            signal_fit=signal_fitted,
+            smoothness_trials=tuple(solve.trials),
+            signal_fit=solve.plan.signal_fit,
             trajectory_basis=out.trajectory_basis,
-            completion_rank=completion_rank,
-            exact_completion=exact_completion,
-            completion_unexplained=unexplained,
+            completion_rank=None if completed is None else completed.rank,
+            exact_completion=completed is not None and completed.exact,
+            completion_unexplained=None if completed is None else completed.unexplained,
             exact_fit=out.exact_fit,
+            plan=solve.plan,
         ),
     )
-
-
-#: :func:`_beyond`: a reconstructed point further from its frame's centroid than this many times
-#: the largest distance of an observed track from the image centroid is off the object. On
-#: the articulated body under its oscillating camera (`body-osc`, prior weight 1,000), with
-#: 10 % of the tracks lost from a random frame on, the masked exact fit's loop threw a lost
-#: stretch to 6.8 (seed 0, converged, e3D 0.498) and 1e8 (seed 2, diverged, e3D 2.7e6) times
-#: that distance; fitted softly they give 0.404 and 0.068. Every other masked exact solve
-#: measured (face3, face4, paper, cloth, bumps-osc, body-osc, body-turn; seeds 20-21; the
-#: combined occlusion, lost tracks alone, a band over 30 % of the width) stayed within 1.33
-#: times it but one body-osc solve at 2.4 (e3D 0.315), which the soft fit does not improve
-#: (0.357): the factor catches the loop going astray, not every poor solve.
-FLUNG_FACTOR = 5.0
-
-
-def _image_reach(tracks: np.ndarray, observed: np.ndarray | None) -> float:
-    """The largest distance of an observed track (F, 2, P), centred, from its image's centre."""
-    image = np.linalg.norm(tracks, axis=1)  # (F, P)
-    return float(image.max() if observed is None else image[observed].max())
-
-
-def _beyond(shapes: np.ndarray, limit: float) -> bool:
-    """Whether shapes (F, 3, P) put a point further than ``limit`` from its frame's centroid.
-
-    A first look at the largest coordinate (one pass) rules most cases out: no point is
-    further than ``2 sqrt(3)`` times it from a centroid.
-    """
-    if 2.0 * math.sqrt(3.0) * float(np.abs(shapes).max()) <= limit:
-        return False
-    centred = shapes - shapes.mean(axis=2, keepdims=True)
-    return bool(np.linalg.norm(centred, axis=1).max() > limit)
-
-
-def _tries_signal_fit(
-    params: SolverParams, noise: float, rotation_source: str, exact_weight: float
-) -> bool:
-    """Whether the solve tries the exact fit of the projected tracks
-    (moju_core/priors/signal_fit.py).
-
-    Noisy tracks (complete, or completed where points are hidden), known cameras, a
-    local-model method (moju, sdg), a soft rule that chose a weight of at most the
-    depth-setting one, and an exact rule on the same trials (``exact_weight``) that accepts
-    the depth-setting weight. Estimated cameras are left out: an exact fit trusts them, and on
-    the noisy oscillating sheets, whose estimates are 20-30 degrees off, it raised e3D
-    (bumps-osc, 1 % noise, seed 5: 0.171 -> 0.323). With missing data the trials fitted the
-    observed entries only and the projected tracks get trials of their own (4 solves); where
-    the observed entries' exact rule rejected the depth-setting weight, those rejected it too
-    on every solve measured (docs/solver.md, "Noisy tracks: the signal fit").
-    """
-    return (
-        params.method in ("moju", "sdg")
-        and noise > defaults.EXACT_DATA_NOISE
-        and rotation_source == "known"
-        and params.smoothness is not None
-        and params.smoothness <= defaults.MIN_DEPTH_PRIOR
-        and exact_weight >= defaults.MIN_DEPTH_PRIOR
-    )
-
-
-#: With missing data the cameras are estimated from the well-seen points whose entries are all
-#: reliable; from all well-seen points when fewer than this are, and from all points when
-#: fewer than this are well seen.
-CAMERA_MIN_POINTS = 20
-
-
-def _camera_points(observed: np.ndarray, reliable: np.ndarray) -> np.ndarray:
-    """The points the camera step sees with missing data, (P,) bool (:data:`CAMERA_MIN_POINTS`).
-
-    Points with an unreliable entry are left out: their values there come from their
-    neighbours (:func:`moju_core.completion.neighbours.borrow_values`) and are not of the model's
-    rank.
-    With them the camera step read the mixture as motion a single camera fit cannot explain
-    and chose the windowed cameras (face3 seed 3, 2,000 points, combined occlusion: 12.0 s
-    against 5.7 s, 2.9 times the complete tracks' time; e3D 0.0165, 0.0170 without them).
-    """
-    seen = missing.well_seen(observed)
-    for points in (seen & reliable.all(axis=0), seen):
-        if points.sum() >= CAMERA_MIN_POINTS:
-            return points
-    return np.ones_like(seen)
-
-
-def _camera_tracks(
-    values: np.ndarray,
-    observed: np.ndarray,
-    reliable: np.ndarray,
-    scale: float,
-    filled: np.ndarray | None,
-) -> tuple[np.ndarray, Spectrum]:
-    """Centred, normalised tracks for the camera step with missing data, and their spectrum.
-
-    The points of :func:`_camera_points` (``observed``, ``reliable``: (F, P) bool).
-    Noise-free tracks (``filled`` None) give their ``values`` (2F, P: the low-rank model's,
-    with the unreliable entries from the neighbours); noisy ones their filled tracks
-    ``filled`` (2F, P; centred, normalised): observed values, ``values`` at the hidden entries.
-
-    * Noise-free, the filled tracks mix exact observed values with the model's errors at the
-      hidden entries, whose spectrum has no floor (face3, 2,000 points, combined occlusion:
-      significant rank 59 against 13 complete); the intersection method's joint fit then took
-      5-6 s against 0.3 s on the model values, and the model values' rotations (0.8-1.0
-      degrees off) cost no accuracy: with the true rotations e3D was the same to 1-6 %.
-    * Noisy, the held-out error chooses a lower rank (face3 at 3 % noise: 4, against 6
-      noise-free), whose model values lose what the cameras need: rotations 4.8-5.5 degrees
-      off, against 1.4 on the filled tracks (0.9-1.2 on complete tracks).
-    """
-    columns = np.flatnonzero(_camera_points(observed, reliable))
-    if filled is not None:
-        tracks = filled[:, columns]
-        tracks = tracks - tracks.mean(axis=1, keepdims=True)
-    else:
-        tracks = values[:, columns]
-        tracks = (tracks - tracks.mean(axis=1, keepdims=True)) / scale
-    return tracks, spectrum(tracks)
-
-
-def _trial_tracks(
-    tracks: np.ndarray, observed: np.ndarray | None, exact_entries: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """The tracks (F, 2, n) and visibility the smoothness trials fit.
-
-    With missing data, the observed entries only
-    (:func:`moju_core.priors.smoothness.choose_smoothness`),
-    unless an exact model predicts the hidden ones (``exact_entries`` is not ``observed``):
-    then the points all of whose entries it predicts or observes, complete, as on complete
-    tracks (at :data:`CAMERA_MIN_POINTS` or more; the trials' masked loop cost 1.3 times the
-    unmasked one on face3).
-    """
-    if observed is None or exact_entries is observed:
-        return tracks, observed
-    points = exact_entries.all(axis=0)
-    if points.sum() < CAMERA_MIN_POINTS:
-        return tracks, exact_entries
-    return np.ascontiguousarray(tracks[:, :, points]), None
 
 
 def _resolve_rotation_method(params: SolverParams, given: bool) -> SolverParams:

@@ -70,7 +70,7 @@ class LoopState:
         Camera rotations (refined in the loop when it re-fits them to the shapes).
     tracks : ndarray of shape (F, 2, P)
         Centred measurements; zero where unobserved, and with the masked data term's
-        per-frame translation moved into them (:func:`moju_core.loop.admm.reprojection_error`).
+        per-frame translation moved into them (:meth:`moju_core.loop.data_terms.SoftTerm.prepare`).
     observed : ndarray of shape (F, P), bool, or None
         Where the points are observed; None: everywhere.
     back_projected : ndarray of shape (F, 3, P)
@@ -113,9 +113,8 @@ class LoopState:
         (:class:`moju_core.loop.lrr.WarmStart`).
     depth_pull : ndarray of shape (F, P) or None
         The exact fit's constant term (:func:`moju_core.priors.temporal_prior.depth_pull`), kept
-        once
-        computed (the exact fit does not refit the translation:
-        :func:`moju_core.loop.admm.reprojection_error`).
+        once computed (the exact fit's translation is the tracks' own:
+        :class:`moju_core.loop.data_terms.ExactTerm`).
     measured : ndarray of shape (F, P), bool, or None
         With an exact fit of tracks with hidden entries, the observed entries (fitted exactly;
         the other entries of ``observed`` softly); None otherwise.
@@ -330,17 +329,10 @@ class LoopSettings:
         The groups adapt (``grouping="adaptive"``): steps 4-8 and the Z-update run too. With
         ``grouping="fixed"`` (an ablation) the initial groups stay, and each is still
         reconstructed on its own subspace (steps 2 and 9).
-    refine_rotations : bool
-        The loop re-fits the rotations to the low-rank shapes while ``rho`` is small.
     prior : TemporalPrior or None
-        The temporal smoothness prior (None for ``smoothness=0``).
-    exact_prior : bool
-        The prior is solved exactly in the S-update (when the loop re-fits the cameras, or
-        fits the tracks exactly); otherwise it filters S# (cheap, with fixed cameras; see
-        :mod:`moju_core.priors.temporal_prior` for the measurements).
-    exact_data : bool
-        The S-update fits the tracks exactly and the prior sets the depths only
-        (:func:`moju_core.priors.temporal_prior.depth_step`; near noise-free, complete tracks).
+        The temporal smoothness prior (None for ``smoothness=0``). The data term solves it
+        in the S-update or the S#-update filters by it
+        (:attr:`moju_core.loop.data_terms.DataTerm.solves_prior`).
     kept_values : int
         Singular values of S# left unshrunk in the first
         :data:`~moju_core.defaults.UNSHRINK_AFTER` iterations: 1 with ``free_mean_shape`` (the
@@ -351,25 +343,16 @@ class LoopSettings:
         Smallest group size (:func:`moju_core.defaults.min_group_size`).
     settled_moves : int
         A regrouping that moves at most this many trajectories leaves the grouping settled.
-    n_observed : int
-        Observed (frame, point) entries.
-    frame_counts : ndarray of shape (F, 1), float, or None
-        Observed points per frame; None when all are observed.
     """
 
     params: SolverParams
     local: bool
     adaptive: bool
-    refine_rotations: bool
     prior: temporal_prior.TemporalPrior | None
-    exact_prior: bool
-    exact_data: bool
     kept_values: int
     unshrunk_values: int
     min_size: int
     settled_moves: int
-    n_observed: int
-    frame_counts: np.ndarray | None
 
     def kept_at(self, iteration: int) -> int:
         """Singular values of S# the S#-update leaves unshrunk at ``iteration`` (1-based)."""
@@ -389,15 +372,7 @@ def fits_exactly(exact_data: bool, refine_rotations: bool, smoothness: float) ->
     return exact_data and not refine_rotations and smoothness >= MIN_DEPTH_PRIOR
 
 
-def loop_settings(
-    params: SolverParams,
-    n_frames: int,
-    n_points: int,
-    observed: np.ndarray | None,
-    refine_rotations: bool,
-    *,
-    exact_data: bool = False,
-) -> LoopSettings:
+def loop_settings(params: SolverParams, n_frames: int, n_points: int) -> LoopSettings:
     """The :class:`LoopSettings` of a solve, derived once before the first iteration.
 
     Parameters
@@ -406,31 +381,18 @@ def loop_settings(
         Fully resolved parameters (:func:`moju_core.defaults.resolve`).
     n_frames, n_points : int
         F and P.
-    observed : ndarray of shape (F, P), bool, or None
-        Where the points are observed; None: everywhere.
-    refine_rotations : bool
-        Whether the loop re-fits the rotations to the shapes.
-    exact_data : bool, default False
-        Fit the tracks exactly when the temporal prior is on (fixed cameras only).
     """
     local = params.method != "bmm" and params.n_groups > 1
-    exact = fits_exactly(exact_data, refine_rotations, params.smoothness)
-    adaptive = local and params.grouping == "adaptive"
     prior = (
         temporal_prior.temporal_prior(n_frames, params.smoothness) if params.smoothness else None
     )
     return LoopSettings(
         params=params,
         local=local,
-        adaptive=adaptive,
-        refine_rotations=refine_rotations,
+        adaptive=local and params.grouping == "adaptive",
         prior=prior,
-        exact_prior=prior is not None and (refine_rotations or exact),
-        exact_data=exact,
         kept_values=1 if params.free_mean_shape else 0,
         unshrunk_values=params.unshrunk_values,
         min_size=min_group_size(params.subspace_dim),
         settled_moves=int(SETTLED_MOVE_FRACTION * n_points),
-        n_observed=n_frames * n_points if observed is None else int(observed.sum()),
-        frame_counts=None if observed is None else observed.sum(axis=1)[:, None].astype(float),
     )

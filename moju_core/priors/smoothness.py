@@ -45,6 +45,7 @@ import numpy as np
 
 from moju_core.defaults import MIN_DEPTH_PRIOR
 from moju_core.loop import admm
+from moju_core.loop.data_terms import choose_term
 from moju_core.params import SolverParams
 from moju_core.spectrum import project_tracks
 
@@ -171,13 +172,11 @@ def choose_smoothness(
         trial = params.model_copy(
             update={"smoothness": weight, "n_groups": 1, **TRIAL_LOOP_CONTROL}
         )
+        term = choose_term(
+            n_frames, signal_tracks.shape[2], observed, banded_prior=refine_rotations and weight > 0
+        )
         out = admm.run(
-            signal_tracks,
-            rotations,
-            trial,
-            hook=hook,
-            refine_rotations=refine_rotations,
-            observed=observed,
+            signal_tracks, admm.LoopCameras(rotations, refine_rotations), trial, term, hook=hook
         )
         value = float(out.history["reprojection"][-1] ** 2) / energy
         trials.append((weight, value))

@@ -252,11 +252,11 @@ def test_an_estimating_method_with_given_rotations_is_refused(face, method):
 
 @pytest.mark.parametrize("seed", range(4))
 def test_the_test_for_shapes_off_the_object_agrees_with_the_distance_it_bounds(seed):
-    from moju_core.solver import _beyond
+    from moju_core.loop.data_terms import beyond
 
     rng = np.random.default_rng(seed)
     shapes = rng.standard_normal((6, 3, 40)) + rng.standard_normal((6, 3, 1))  # offset frames
     shapes[rng.integers(6), :, rng.integers(40)] *= 1.0 + 10.0 * rng.random()
     distance = np.linalg.norm(shapes - shapes.mean(axis=2, keepdims=True), axis=1).max()
     for limit in (0.5 * distance, 0.999 * distance, 1.001 * distance, 2 * distance, 10 * distance):
-        assert _beyond(shapes, limit) == (distance > limit)
+        assert beyond(shapes, limit) == (distance > limit)

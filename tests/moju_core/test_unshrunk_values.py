@@ -109,7 +109,7 @@ def test_the_loop_keeps_the_mean_shape_only_for_the_first_iterations() -> None:
         SolverParams(unshrunk_values=3, smoothness=0.0, n_groups=1), 10, 20, 1.0
     )
     assert params.free_mean_shape
-    settings = loop_settings(params, 10, 20, None, False)
+    settings = loop_settings(params, 10, 20)
     after = defaults.UNSHRINK_AFTER
     assert [settings.kept_at(i) for i in (1, after, after + 1, 300)] == [1, 1, 3, 3]
 

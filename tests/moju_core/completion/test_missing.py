@@ -421,25 +421,26 @@ def test_the_group_fill_fits_the_values_before_the_projection_with_hidden_frames
 
 def _masked_loop_state(exact: bool):
     """A loop state of 6 frames x 20 points (30 % hidden at random, shapes off the tracks)
-    and its settings: the soft data term, or the exact fit with the observed entries
-    measured. Returns (rng, rotations, tracks, observed, state, settings)."""
-    from moju_core.loop.loop_state import initial_state, loop_settings
+    and its data term: the soft one, or the exact fit with the observed entries measured.
+    Returns (rng, rotations, tracks, observed, state, term)."""
+    from moju_core.loop.data_terms import choose_term
+    from moju_core.loop.loop_state import initial_state
 
     rng = np.random.default_rng(5)
     rotations = project_to_stiefel(rng.standard_normal((6, 2, 3)))
     tracks = rng.standard_normal((6, 2, 20))
     observed = rng.random((6, 20)) > 0.3
-    params = SolverParams(seed=0, rotations="known", smoothness=10.0 if exact else 0.0)
-    params = defaults.resolve(params, 6, 20, 1.0, rotations=rotations)
-    settings = loop_settings(params, 6, 20, observed, False, exact_data=exact)
-    state = initial_state(tracks, rotations, 1.0, observed, measured=observed if exact else None)
+    measured = observed if exact else None
+    term = choose_term(6, 20, observed, exact=exact, measured=measured)
+    state = initial_state(tracks, rotations, 1.0, observed, measured=measured)
     state.shapes += rng.standard_normal(state.shapes.shape)
-    return rng, rotations, tracks, observed, state, settings
+    return rng, rotations, tracks, observed, state, term
 
 
 def test_the_translation_refit_keeps_the_back_projection_of_the_tracks():
-    _, rotations, _, observed, state, settings = _masked_loop_state(exact=False)
-    rms = admm.reprojection_error(state, settings)
+    _, rotations, _, observed, state, term = _masked_loop_state(exact=False)
+    rms = term.residual(state)
+    term.prepare(state, iteration=2)
     assert_allclose(state.back_projected, projection.back_project(rotations, state.tracks))
     # The RMS over the observed entries after the refit, computed directly: each frame's
     # observed residuals now have mean zero.
@@ -452,10 +453,11 @@ def test_the_translation_refit_keeps_the_back_projection_of_the_tracks():
 def test_an_exact_fit_keeps_the_translation_of_the_completion():
     """With the measured entries fitted exactly, moving a frame's translation by t and its
     shape by -R^T t leaves every residual as it is: no refit, the tracks stay put."""
-    rng, rotations, tracks, observed, state, settings = _masked_loop_state(exact=True)
-    assert settings.exact_data
+    rng, rotations, tracks, observed, state, term = _masked_loop_state(exact=True)
+    assert term.exact
     before, back_projected = state.tracks.copy(), state.back_projected.copy()
-    rms = admm.reprojection_error(state, settings)
+    term.prepare(state, iteration=2)
+    rms = term.residual(state)
     assert np.array_equal(state.tracks, before)
     assert np.array_equal(state.back_projected, back_projected)
     residual = projection.project(rotations, state.shapes) - tracks
@@ -468,8 +470,28 @@ def test_an_exact_fit_keeps_the_translation_of_the_completion():
     assert_allclose(moved_residual, residual, atol=1e-12)
 
 
+def _completed(values, visibility, reliable):
+    """A :class:`CompletedTracks` holding what the camera step reads."""
+    from moju_core.completion.completed import CompletedTracks
+
+    return CompletedTracks(
+        W=values,
+        values=values,
+        observed=visibility,
+        reliable=reliable,
+        fitted=None,
+        borrowed=False,
+        exact_entries=visibility,
+        noise=None,
+        noisy=False,
+        rank=4,
+        exact=True,
+        unexplained=None,
+    )
+
+
 def test_the_cameras_with_missing_data_use_the_well_seen_points_values():
-    from moju_core import solver
+    from moju_core.completion.completed import camera_tracks
 
     rng = np.random.default_rng(6)
     W = _low_rank_w(rng, n_points=100)
@@ -478,7 +500,8 @@ def test_the_cameras_with_missing_data_use_the_well_seen_points_values():
     model = missing.complete_at_rank(W, visibility, 4)
     reliable = np.ones_like(visibility)
     reliable[0, 40:50] = visibility[0, 40:50] = False  # well seen, one unreliable entry
-    tracks, decomposition = solver._camera_tracks(model.values(), visibility, reliable, 2.0, None)
+    completed = _completed(model.values(), visibility, reliable)
+    tracks, decomposition = camera_tracks(completed, W, 2.0, noisy=False)
     singular = decomposition.singular
     assert tracks.shape == (60, 50)
     expected = model.values(np.arange(50, 100))
@@ -489,19 +512,20 @@ def test_the_cameras_with_missing_data_use_the_well_seen_points_values():
 
 
 def test_noisy_tracks_with_missing_data_give_the_cameras_their_filled_tracks():
-    from moju_core import solver
+    from moju_core.completion.completed import camera_tracks
 
     rng = np.random.default_rng(7)
     W = _low_rank_w(rng, n_points=100)
     visibility = np.ones((30, 100), bool)
     visibility[5:, :40] = False
     model = missing.complete_at_rank(W, visibility, 4)
-    filled = model.fill(W + 0.01 * rng.standard_normal(W.shape), visibility)
-    reliable = np.ones_like(visibility)
-    tracks, decomposition = solver._camera_tracks(model.values(), visibility, reliable, 2.0, filled)
+    noisy = W + 0.01 * rng.standard_normal(W.shape)
+    completed = _completed(model.values(), visibility, np.ones_like(visibility))
+    tracks, decomposition = camera_tracks(completed, noisy, 2.0, noisy=True)
+    filled = model.fill(noisy, visibility) / 2.0
     expected = filled[:, 40:] - filled[:, 40:].mean(axis=1, keepdims=True)
     assert_allclose(tracks, expected)
-    noise_free = solver._camera_tracks(model.values(), visibility, reliable, 1.0, None)[0]
+    noise_free = camera_tracks(completed, noisy, 1.0, noisy=False)[0]
     assert not np.allclose(tracks, noise_free)
 
 
@@ -510,32 +534,38 @@ def test_the_cameras_of_noisy_tracks_see_the_model_values_not_the_gap_corrected_
     estimated cameras of noisy sequences moved chaotically with it (flag-osc, 1 % noise,
     seed 47: e3D 0.168 -> 0.215)."""
     from moju_core import solver
+    from moju_core.completion.completed import camera_points
 
     data = make_sequence("body-osc", n_points=41, n_frames=120, seed=1, noise=0.01)
     visibility = occlusion_mask(data, band=0.0, lost=0.0, dropout=0.1, seed=1)
     seen = {}
-    camera_tracks, fill = solver._camera_tracks, gaps.filled
+    camera_tracks, fill = solver.camera_tracks, gaps.filled
 
-    def record_camera_tracks(values, observed, reliable, scale, filled):
-        seen["camera"] = (values, scale, filled)
-        return camera_tracks(values, observed, reliable, scale, filled)
+    def record_camera_tracks(completed, measured, scale, noisy):
+        seen["camera"] = (completed, measured, scale, noisy)
+        seen["camera_tracks"] = camera_tracks(completed, measured, scale, noisy)
+        return seen["camera_tracks"]
 
     def record_fill(values, W, observed, gap):
         seen["gap"] = gap
         seen["loop"] = fill(values, W, observed, gap)
         return seen["loop"]
 
-    monkeypatch.setattr(solver, "_camera_tracks", record_camera_tracks)
+    monkeypatch.setattr(solver, "camera_tracks", record_camera_tracks)
     monkeypatch.setattr(gaps, "filled", record_fill)
     params = SolverParams(seed=1, max_iter=1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         reconstruct(_with_nan(data.W, visibility), params)
-    values, scale, filled = seen["camera"]
+    completed, measured, scale, noisy = seen["camera"]
     hidden = ~missing.expand_mask(visibility)
-    assert seen["gap"].corrects and filled is not None
-    assert_allclose(filled[hidden] * scale, values[hidden])
-    assert not np.allclose(seen["loop"][hidden], values[hidden])
+    assert seen["gap"].corrects and noisy
+    assert not np.allclose(seen["loop"][hidden], completed.values[hidden])
+    # The camera step's tracks: observed values, the model's values at the hidden entries.
+    columns = camera_points(completed.observed, completed.reliable)
+    expected = np.where(hidden, completed.values, measured)[:, columns] / scale
+    expected -= expected.mean(axis=1, keepdims=True)
+    assert_allclose(seen["camera_tracks"][0], expected)
 
 
 def test_noisy_tracks_with_missing_data_get_cameras_as_good_as_complete_tracks():

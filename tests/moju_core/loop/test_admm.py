@@ -10,6 +10,7 @@ from moju_core import SolverParams, StopReason, defaults, reconstruct
 from moju_core.datasets import make_sequence
 from moju_core.defaults import GAP_PRECISION, SETTLED_MOVE_FRACTION
 from moju_core.loop import admm, clustering
+from moju_core.loop.data_terms import choose_term
 from moju_core.metrics import e3d
 
 
@@ -87,7 +88,8 @@ def test_a_hook_returning_true_stops_the_loop_after_that_iteration() -> None:
         seen.append((iteration, rho))
         return iteration == 3
 
-    out = admm.run(tracks, data.rotations, params, hook=hook)
+    term = choose_term(data.n_frames, 300, None)
+    out = admm.run(tracks, admm.LoopCameras(data.rotations), params, term, hook=hook)
     assert out.stop_reason is StopReason.STOPPED and out.n_iter == 3
     assert [iteration for iteration, _ in seen] == [1, 2, 3]
     assert all(len(values) == 3 for values in out.history.values())

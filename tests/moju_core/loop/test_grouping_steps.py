@@ -32,7 +32,7 @@ def _grouped_state(n_groups: int = 4):
     state.permute(np.argsort(state.labels, kind="stable"))
     # Off the zero-depth start, so that every group spans more than p dimensions.
     state.shapes += 0.1 * np.random.default_rng(0).standard_normal(state.shapes.shape)
-    settings = loop_settings(params, data.n_frames, data.n_points, None, False)
+    settings = loop_settings(params, data.n_frames, data.n_points)
     return state, settings
 
 
