@@ -154,7 +154,7 @@ class Diagnostics:
         missing.
     exact_completion : bool
         Whether W was found exactly of that rank
-        (:func:`moju_core.completion.missing.exact_model`): the
+        (:func:`moju_core.completion.exact_model.exact_model`): the
         cameras and the fit then treat the trusted hidden entries as measured.
     completion_unexplained : float or None
         With missing data and a completion that is not exact, the held-out error its rank

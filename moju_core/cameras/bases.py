@@ -13,8 +13,7 @@ import math
 
 import numpy as np
 
-from moju_core import feasibility
-from moju_core.errors import MeasurementError
+from moju_core import feasibility, validation
 from moju_core.feasibility import min_frames_for_bases
 from moju_core.spectrum import significant_rank, spectrum
 
@@ -22,16 +21,11 @@ __all__ = ["check_measurements", "check_n_bases", "choose_n_bases", "min_frames_
 
 
 def check_measurements(W: np.ndarray) -> np.ndarray:
-    """W as a float64 array, checked for the camera estimators.
+    """W (2F, P) as C-contiguous float64, checked for the camera estimators.
 
-    Parameters
-    ----------
-    W : array_like of shape (2F, P)
-        Centred measurements.
-
-    Returns
-    -------
-    ndarray of shape (2F, P), float64
+    The one validator of W (:func:`moju_core.validation.check_measurements`: complete tracks,
+    NaN refused, since a factorisation needs every entry), and at least the frames an estimate
+    needs (:func:`moju_core.feasibility.check_rotation_frames`).
 
     Raises
     ------
@@ -39,17 +33,7 @@ def check_measurements(W: np.ndarray) -> np.ndarray:
         If W is not 2-D, has an odd number of rows, holds NaN or infinite values, or has
         fewer than 3 frames.
     """
-    W = np.asarray(W, dtype=np.float64)
-    if W.ndim != 2:
-        raise MeasurementError(
-            f"W must be a 2-D array of shape (2F, P), got an array of shape {W.shape}"
-        )
-    if W.shape[0] % 2 != 0:
-        raise MeasurementError(
-            f"W must have an even number of rows (x and y of every frame), got {W.shape[0]}"
-        )
-    if not np.all(np.isfinite(W)):
-        raise MeasurementError("W contains NaN or infinite values; fill or drop those tracks")
+    W = validation.check_measurements(W)
     feasibility.check_rotation_frames(W.shape[0] // 2)
     return W
 

@@ -12,7 +12,7 @@ couples only its own rows), so the eigenvectors come from a banded solver.
 
 This is a starting point, not the fit: a window whose points miss a weak direction of W
 (an occluder hides the part of the object that moves in it) constrains it wrongly, and
-:func:`moju_core.completion.missing.exact_model` refines each candidate subspace by alternating
+:func:`moju_core.completion.exact_model.exact_model` refines each candidate subspace by alternating
 least
 squares on all observed entries, then keeps the first that predicts held-out entries. Where
 W is not exactly of low rank (noise), some window's block has no gap in its spectrum and

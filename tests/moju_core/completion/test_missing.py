@@ -11,7 +11,7 @@ from numpy.testing import assert_allclose
 from moju_core import SolverParams, defaults, pta, reconstruct
 from moju_core.cameras import projection
 from moju_core.cameras.refinement import project_to_stiefel
-from moju_core.completion import gaps, missing
+from moju_core.completion import exact_model, gaps, least_squares, missing
 from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.errors import MeasurementError
 from moju_core.loop import admm
@@ -723,11 +723,11 @@ def test_the_alternating_solves_are_least_squares_on_the_observed_entries():
         return np.linalg.lstsq(stacked, target, rcond=None)[0]
 
     left = rng.standard_normal((2 * n_frames, k))
-    points = missing._solve_points(left, data, visibility, ridge)
+    points = least_squares.solve_points(left, data, visibility, ridge)
     for j in range(n_points):
         assert_allclose(points[:, j], ridged(left, W[:, j], mask[:, j]), rtol=1e-9, atol=1e-12)
     features = rng.standard_normal((n_points, k))
-    rows = missing._solve_frames(features, data, visibility, ridge)
+    rows = least_squares.solve_frames(features, data, visibility, ridge)
     for i in range(2 * n_frames):
         assert_allclose(rows[:, i], ridged(features, W[i], mask[i]), rtol=1e-9, atol=1e-12)
 
@@ -743,14 +743,14 @@ def test_spare_directions_of_an_exact_fit_are_cut_to_the_column_space_of_w():
     left = np.hstack([np.linalg.svd(W, full_matrices=False)[0][:, :6], spare])
     left = left @ rng.standard_normal((8, 8))
     columns = np.arange(400)
-    coefficients = missing._solve_points(left, *missing._masked(W, visibility, columns))
+    coefficients = least_squares.solve_points(left, *exact_model._masked(W, visibility, columns))
     observed = np.repeat(visibility, 2, axis=0)
     fitted = left @ coefficients
     assert np.abs(fitted - W)[observed].max() < 1e-6 * np.abs(W).max()
     # The 80 points' coefficients use the spare directions at their hidden entries.
     assert np.abs(fitted - W)[~observed].max() > 1e-2 * np.abs(W).max()
-    assert missing._exact_span(left, coefficients).shape[1] == 8
-    trimmed = missing._trimmed(W, visibility, left, 6)
+    assert least_squares.exact_span(left, coefficients).shape[1] == 8
+    trimmed = exact_model._trimmed(W, visibility, left, 6)
     assert trimmed.shape[1] == 6
     cosines = np.linalg.svd(
         np.linalg.svd(W, full_matrices=False)[0][:, :6].T @ np.linalg.qr(trimmed)[0],
@@ -766,7 +766,7 @@ def test_an_exact_model_tried_under_heavy_occlusion_warns_nothing():
     W = np.where(np.repeat(visibility, 2, axis=0), data.W, 0.0)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        missing.exact_model(W, visibility)
+        exact_model.exact_model(W, visibility)
 
 
 @pytest.mark.parametrize("sigma", [1e-3, 1e-2])
@@ -774,7 +774,7 @@ def test_noisy_tracks_get_no_exact_model_and_the_rank_chosen_by_held_out_error(s
     rng = np.random.default_rng(12)
     visibility = _band_visibility()
     W = _low_rank_w(rng, n_rows=120, n_points=400, rank=5) + sigma * rng.standard_normal((120, 400))
-    assert missing.exact_model(W, visibility) is None
+    assert exact_model.exact_model(W, visibility) is None
     model = missing.complete(W, visibility)
     assert not model.exact and model.rank == missing.choose_rank(W, visibility).rank
     result = reconstruct(_with_nan(W, visibility), SolverParams(max_iter=1, smoothness=0.0))
@@ -788,7 +788,7 @@ def test_an_exact_model_is_refused_when_alternating_least_squares_stalls(monkeyp
     rng = np.random.default_rng(13)
     visibility = _band_visibility()
     W = _low_rank_w(rng, n_rows=120, n_points=400, rank=5)
-    assert missing.exact_model(W, visibility) is not None
+    assert exact_model.exact_model(W, visibility) is not None
     from moju_core.completion import window_subspace
 
     spaces = window_subspace.column_spaces
@@ -797,16 +797,16 @@ def test_an_exact_model_is_refused_when_alternating_least_squares_stalls(monkeyp
         "column_spaces",
         lambda *args: ((basis[:, :4], 4) for basis, _ in spaces(*args)),
     )
-    assert missing.exact_model(W, visibility) is None
+    assert exact_model.exact_model(W, visibility) is None
 
 
 def test_an_exact_model_is_refused_when_its_test_points_are_not_predicted(monkeypatch):
     rng = np.random.default_rng(14)
     visibility = _band_visibility()
     W = _low_rank_w(rng, n_rows=120, n_points=400, rank=5)
-    assert missing.exact_model(W, visibility) is not None
-    monkeypatch.setattr(missing, "EXACT_MODEL_ERROR", 0.0)  # no prediction is that good
-    assert missing.exact_model(W, visibility) is None
+    assert exact_model.exact_model(W, visibility) is not None
+    monkeypatch.setattr(exact_model, "EXACT_MODEL_ERROR", 0.0)  # no prediction is that good
+    assert exact_model.exact_model(W, visibility) is None
 
 
 def test_an_exactly_low_rank_face_with_missing_data_is_solved_as_if_complete():
