@@ -22,7 +22,7 @@ Where the soft rule chooses more (face3, the paper: 100-1000) the soft loop deno
 through its own low-rank model, and the projection cost up to 25 % at 3 % noise.
 Estimated cameras keep the soft fit: an exact fit trusts the cameras, and the estimates of
 the noisy oscillating sheets are 20-30 degrees off.
-Measured in docs/solver.md, "Noisy tracks".
+Design in docs/solver.md, "Noisy tracks"; the measurements in benchmarks/notes/.
 """
 
 from __future__ import annotations
