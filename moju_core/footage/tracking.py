@@ -44,10 +44,11 @@ from typing import Literal
 
 import numpy as np
 
+from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.errors import Cancelled, VideoError, VideoTooLarge
 from moju_core.footage.video import DEFAULT_LIMITS, VideoLimits, check_clip, open_video, read_mask
 from moju_core.io import Measurements, atomic_output
-from moju_core.validation import MIN_FRAMES_PER_POINT, MIN_POINTS_PER_FRAME
+from moju_core.validation import MIN_POINTS_PER_FRAME, solvable_points
 
 __all__ = [
     "DEFAULT_STEP",
@@ -117,12 +118,16 @@ class Tracks:
         RGB of every point in the first frame.
     frame_size : (int, int)
         (width, height) of the frames in pixels.
+    intrinsics : Intrinsics or None
+        The camera matrix the user gave for the video (:mod:`moju_core.cameras.intrinsics`);
+        None when none was given (readers then take the default camera of ``frame_size``).
     """
 
     W: np.ndarray
     visibility: np.ndarray
     colors: np.ndarray
     frame_size: tuple[int, int]
+    intrinsics: Intrinsics | None = None
 
     @property
     def n_frames(self) -> int:
@@ -490,29 +495,34 @@ def _bounded(frames: Iterator[np.ndarray], max_frames: int, name: str) -> Iterat
 
 def write_tracks(path: str | os.PathLike, tracks: Tracks) -> None:
     """Write ``tracks`` to an npz: ``W`` (2F, P) float64 with NaN where lost, ``visibility``
-    (F, P) bool, ``colors`` (P, 3) uint8 and ``frame_size`` (2,) int64 = (width, height).
+    (F, P) bool, ``colors`` (P, 3) uint8, ``frame_size`` (2,) int64 = (width, height) and,
+    when the tracks carry intrinsics other than the default, ``K`` (3, 3) float64 in pixels.
 
     The file is written under a temporary name and renamed, so no partial file is left.
     """
+    arrays = {
+        "W": tracks.W,
+        "visibility": tracks.visibility,
+        "colors": tracks.colors,
+        "frame_size": np.asarray(tracks.frame_size, dtype=np.int64),
+    }
+    if tracks.intrinsics is not None and tracks.intrinsics.origin != "default":
+        arrays["K"] = tracks.intrinsics.K
     with atomic_output(path) as temporary, open(temporary, "wb") as handle:
-        np.savez_compressed(
-            handle,
-            W=tracks.W,
-            visibility=tracks.visibility,
-            colors=tracks.colors,
-            frame_size=np.asarray(tracks.frame_size, dtype=np.int64),
-        )
+        np.savez_compressed(handle, **arrays)
 
 
 def solvable_tracks(tracks: Tracks) -> Tracks:
-    """The tracks the solver can use: those with a position in at least
-    :data:`moju_core.validation.MIN_FRAMES_PER_POINT` frames (a track lost right after the
-    first frame gives no depth), in their original order.
+    """The tracks the solver can use, in their original order: those with a position in at
+    least :data:`moju_core.validation.MIN_FRAMES_PER_POINT` frames (a track lost right after
+    the first frame gives no depth), chosen and announced by
+    :func:`moju_core.validation.solvable_points` (a warning says how many are left out), the
+    rule a tracks file read with ``short_tracks="drop"`` follows too.
 
     Raises VideoError when fewer than :data:`MIN_POINTS_PER_FRAME` tracks are left, in all or
     in some frame (frames are numbered from the first tracked one).
     """
-    keep = np.count_nonzero(tracks.visibility, axis=0) >= MIN_FRAMES_PER_POINT
+    keep = solvable_points(tracks.W, tracks.visibility)
     if np.count_nonzero(keep) < MIN_POINTS_PER_FRAME:
         raise VideoError(
             f"only {int(np.count_nonzero(keep))} of {tracks.n_points} tracks were followed "
@@ -536,9 +546,18 @@ def solvable_tracks(tracks: Tracks) -> Tracks:
         visibility=np.ascontiguousarray(tracks.visibility[:, keep]),
         colors=np.ascontiguousarray(tracks.colors[keep]),
         frame_size=tracks.frame_size,
+        intrinsics=tracks.intrinsics,
     )
 
 
 def tracks_measurements(tracks: Tracks) -> Measurements:
-    """``tracks`` as solver input: W (NaN where lost), visibility and the points' colours."""
-    return Measurements(W=tracks.W, visibility=tracks.visibility, colors=tracks.colors)
+    """``tracks`` as solver input: W (NaN where lost), visibility, the points' colours, the
+    frame size and the intrinsics (the default camera of the frame size when none was
+    given)."""
+    return Measurements(
+        W=tracks.W,
+        visibility=tracks.visibility,
+        colors=tracks.colors,
+        frame_size=tracks.frame_size,
+        intrinsics=tracks.intrinsics,
+    )
