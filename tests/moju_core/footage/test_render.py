@@ -10,7 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from moju_core.render import (
+
+from moju_core.footage.render import (
     rasterize,
     render_sequence,
     score_tracks,

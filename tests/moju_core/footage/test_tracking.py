@@ -13,13 +13,13 @@ import zlib
 import cv2
 import numpy as np
 import pytest
-from moju_core.render import render_sequence, score_tracks, write_image_folder, write_video
-from moju_core.tracking import Tracks, track_frames, track_video, write_tracks
-from moju_core.video import VideoLimits, open_video
 from numpy.testing import assert_array_equal
 from scipy.ndimage import gaussian_filter
 
 from moju_core.errors import Cancelled, VideoError, VideoTooLarge
+from moju_core.footage.render import render_sequence, score_tracks, write_image_folder, write_video
+from moju_core.footage.tracking import Tracks, track_frames, track_video, write_tracks
+from moju_core.footage.video import VideoLimits, open_video
 
 SIZE = (160, 120)
 N_FRAMES = 20
