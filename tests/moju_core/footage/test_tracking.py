@@ -132,8 +132,12 @@ def test_occluded_tracks_are_dropped():
     stays_inside = start[:, 0] + len(frames) - 1 <= SIZE[0] - 1
     free = ~on_square & ~touched & stays_inside
     assert tracks.visibility[-1, free].mean() > 0.95
-    truth = start[free] + [len(frames) - 1, 0]
-    error = np.linalg.norm(_positions(tracks)[-1, free] - truth, axis=1)
+    # Of those, the ones kept to the end are where the background is. (The few lost are in
+    # the row 6 px below the square: the flow gradient of the boundary check is taken 3 px
+    # apart, so it reaches that close to an occluding edge.)
+    kept = free & tracks.visibility[-1]
+    truth = start[kept] + [len(frames) - 1, 0]
+    error = np.linalg.norm(_positions(tracks)[-1, kept] - truth, axis=1)
     # (A few tracks drift by about a pixel over the 15 frames; measured maximum 1.3.)
     assert np.median(error) < 0.1 and error.max() < 2.0
     # The square itself is followed (its inside, away from its edges).
