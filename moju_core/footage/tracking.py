@@ -279,10 +279,11 @@ class _Flow:
         # remap takes maps of fewer than 32767 rows and columns: the points are laid out as
         # rows of _SAMPLE_ROW (padded with the last point).
         rows = -(-n // _SAMPLE_ROW)
-        grid = np.empty((rows * _SAMPLE_ROW, 2), dtype=np.float32)
+        columns = -(-n // rows)
+        grid = np.empty((rows * columns, 2), dtype=np.float32)
         grid[:n] = points
         grid[n:] = points[-1]
-        grid = grid.reshape(rows, _SAMPLE_ROW, 2)
+        grid = grid.reshape(rows, columns, 2)
         sampled = self._cv2.remap(
             flow, grid[..., 0], grid[..., 1], self._cv2.INTER_LINEAR,
             borderMode=self._cv2.BORDER_REPLICATE,
