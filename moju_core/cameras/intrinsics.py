@@ -40,10 +40,12 @@ from moju_core.errors import MeasurementError
 __all__ = [
     "DEFAULT_FOCAL_FACTOR",
     "MAX_FRAME_SIDE",
+    "MAX_INTRINSICS_BYTES",
     "Intrinsics",
     "IntrinsicsOrigin",
     "check_frame_size",
     "check_intrinsics_matrix",
+    "parse_intrinsics",
     "read_intrinsics",
 ]
 
@@ -52,8 +54,8 @@ __all__ = [
 DEFAULT_FOCAL_FACTOR = 1.2
 #: Largest width or height accepted for a frame size, in pixels.
 MAX_FRAME_SIDE = 65_536
-#: Largest intrinsics text file read, in bytes: three lines of three numbers and comments.
-_MAX_TEXT_BYTES = 64 * 1024
+#: Largest intrinsics text read, in bytes: three lines of three numbers and comments.
+MAX_INTRINSICS_BYTES = 64 * 1024
 
 IntrinsicsOrigin = Literal["given", "focal", "default"]
 _ORIGINS = ("given", "focal", "default")
@@ -293,7 +295,7 @@ def read_intrinsics(path: str | os.PathLike) -> Intrinsics:
     Parameters
     ----------
     path : str or os.PathLike
-        The text file (at most 64 KiB).
+        The text file (at most 64 KiB; only that much is read).
 
     Returns
     -------
@@ -303,19 +305,37 @@ def read_intrinsics(path: str | os.PathLike) -> Intrinsics:
     Raises
     ------
     MeasurementError
-        When the file cannot be read, is not three rows of three numbers, or K is not a valid
-        camera matrix (:func:`check_intrinsics_matrix`).
+        When the file cannot be read, or its text is not K (:func:`parse_intrinsics`).
     """
     name = Path(path).name
     try:
         with open(path, "rb") as handle:
-            raw = handle.read(_MAX_TEXT_BYTES + 1)
+            raw = handle.read(MAX_INTRINSICS_BYTES + 1)
     except OSError as exc:
         raise MeasurementError(f"could not read {name}: {exc.strerror or exc}") from exc
-    if len(raw) > _MAX_TEXT_BYTES:
+    return parse_intrinsics(raw, name)
+
+
+def parse_intrinsics(raw: bytes, name: str = "the intrinsics") -> Intrinsics:
+    """K from the bytes of an intrinsics text file (an upload), as :func:`read_intrinsics`.
+
+    Parameters
+    ----------
+    raw : bytes
+        UTF-8 text, at most :data:`MAX_INTRINSICS_BYTES`.
+    name : str
+        Name used in messages (a file name, a form field).
+
+    Raises
+    ------
+    MeasurementError
+        When the text is too long, not UTF-8, not three rows of three numbers, or K is not a
+        valid camera matrix (:func:`check_intrinsics_matrix`).
+    """
+    if len(raw) > MAX_INTRINSICS_BYTES:
         raise MeasurementError(
-            f"{name} is larger than {_MAX_TEXT_BYTES // 1024} KiB; an intrinsics file holds "
-            "three lines of three numbers"
+            f"{name} is larger than {MAX_INTRINSICS_BYTES // 1024} KiB; an intrinsics file "
+            "holds three lines of three numbers"
         )
     try:
         text = raw.decode("utf-8-sig")

@@ -141,3 +141,12 @@ def test_read_intrinsics_refuses_what_is_not_k(tmp_path, content, fragment):
 def test_read_intrinsics_of_a_missing_file(tmp_path):
     with pytest.raises(MeasurementError, match="could not read missing.txt"):
         read_intrinsics(tmp_path / "missing.txt")
+
+
+def test_parse_intrinsics_reads_an_upload_as_the_file_reader_does():
+    from moju_core.cameras.intrinsics import parse_intrinsics
+
+    camera = parse_intrinsics(b"528.0144 0 320\n0 528.0144 240\n0 0 1\n", "the form field")
+    assert_array_equal(camera.K, K)
+    with pytest.raises(MeasurementError, match="^the form field holds 1 row"):
+        parse_intrinsics(b"1 2 3", "the form field")
