@@ -20,8 +20,22 @@ at that size.
                                              # at 320 x 320 (reconstructed); 40 frames each;
                                              # paper at 1280 x 720, 10 frames (time only)
     python benchmarks/tracking.py --quick    # one small video, to prove it runs
+    python benchmarks/tracking.py --ratio    # CPU time per frame pair against one DIS flow
 
 Results: ``benchmarks/results/tracking.json`` and ``tracking.md``.
+
+``--ratio`` measures the tracker's speed in units of the flow it is built on: the CPU time of
+``track_frames`` per frame pair (forward, backward and keyframe flows and every check
+included; decoding excluded: the frames are decoded once, beforehand) over the CPU time of one
+OpenCV DIS flow with the medium preset as it is (``cv2.DISOPTICAL_FLOW_PRESET_MEDIUM``) on the
+same consecutive frame pairs, measured side by side in one process: DIS, tracker, DIS, three
+times; the ratio of each repeat uses the mean of the two DIS timings around it, and the median
+of the three ratios is reported, with the tracks' scores against the ground truth (the same in
+every repeat). Videos: the paper at 640 x 480 and the face at 320 x 240, 40 frames each
+(``--frames``), rendered, written as mp4 and decoded. Results:
+``benchmarks/results/tracking/ratio_LABEL.json`` and ``.md`` (``--label``, default
+``current``); with ``PYTHONPATH`` at another checkout the same command measures that
+checkout's tracker.
 """
 
 from __future__ import annotations
@@ -38,7 +52,13 @@ from harness import RESULTS, provenance, table, write_json, write_markdown
 
 from moju_core import reconstruct
 from moju_core.footage.render import RenderedVideo, render_sequence, score_tracks, write_video
-from moju_core.footage.tracking import DEFAULT_STEP, Tracks, solvable_tracks, track_video
+from moju_core.footage.tracking import (
+    DEFAULT_STEP,
+    Tracks,
+    solvable_tracks,
+    track_frames,
+    track_video,
+)
 from moju_core.metrics import e3d
 from moju_core.params import SolverParams
 
@@ -52,6 +72,9 @@ FULL = [
 QUICK = [("paper", 160, 120)]
 #: Sizes whose tracks are also reconstructed (tracked against perfect tracks).
 RECONSTRUCTED = {(320, 320)}
+#: Videos of ``--ratio``: (sequence, width, height).
+RATIO_VIDEOS = [("paper", 640, 480), ("face1", 320, 240)]
+RATIO_REPEATS = 3
 #: The large-frame timing: a render upscaled to 1280 x 720 (rendering at that size is slow).
 LARGE = ("paper", 320, 240, 1280, 720)
 LARGE_FRAMES = 10
@@ -145,14 +168,114 @@ def time_large(directory: Path) -> dict[str, Any]:
     }  # fmt: skip
 
 
+def _decoded(path: Path) -> list[np.ndarray]:
+    """The RGB frames of a video file as the tracker reads them."""
+    capture = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(np.ascontiguousarray(frame[:, :, ::-1]))
+    capture.release()
+    return frames
+
+
+def _dis_cpu_per_pair(greys: list[np.ndarray]) -> float:
+    """CPU seconds of one DIS flow (medium preset, as it is) per consecutive frame pair."""
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    start = time.process_time()
+    for first, second in zip(greys[:-1], greys[1:], strict=True):
+        dis.calc(first, second, None)
+    return (time.process_time() - start) / (len(greys) - 1)
+
+
+def ratio_one(name: str, width: int, height: int, n_frames: int, directory: Path) -> dict:
+    """Tracker CPU time per frame pair over one DIS-medium flow's, median of the repeats."""
+    video = render_sequence(name, width=width, height=height, n_frames=n_frames)
+    frames = _decoded(write_video(directory / f"{name}_{width}x{height}.mp4", video.frames))
+    greys = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in frames]
+    pairs = len(frames) - 1
+    repeats = []
+    for _ in range(RATIO_REPEATS):
+        before = _dis_cpu_per_pair(greys)
+        start = time.process_time()
+        tracks = track_frames(frames, mask=video.mask)
+        tracker = (time.process_time() - start) / pairs
+        after = _dis_cpu_per_pair(greys)
+        dis = 0.5 * (before + after)
+        repeats.append({"tracker_ms": 1000 * tracker, "dis_ms": 1000 * dis, "ratio": tracker / dis})
+    scores = score_tracks(video, tracks.W)
+    ratios = [r["ratio"] for r in repeats]
+    return {
+        "sequence": name, "width": width, "height": height, "frames": len(frames),
+        "tracks": tracks.n_points, "repeats": repeats, "ratio": float(np.median(ratios)),
+        "median_error_px": scores.median_error, "p90_error_px": scores.p90_error,
+        "fraction_kept": scores.fraction_kept,
+        "fraction_of_visible_kept": scores.fraction_of_visible_kept,
+        "fraction_kept_hidden": scores.fraction_kept_occluded,
+    }  # fmt: skip
+
+
+def ratio_main(n_frames: int, label: str) -> None:
+    """``--ratio``: the speed of the tracker in DIS-medium flows per frame pair."""
+    meta = provenance()
+    meta["opencv"] = cv2.__version__
+    meta["opencv_threads"] = cv2.getNumThreads()
+    rows = []
+    with tempfile.TemporaryDirectory() as directory:
+        for name, width, height in RATIO_VIDEOS:
+            row = ratio_one(name, width, height, n_frames, Path(directory))
+            print(row, flush=True)
+            rows.append(row)
+    out = RESULTS / "tracking"
+    write_json(out / f"ratio_{label}.json", meta, label=label, rows=rows)
+    body = table(
+        ["video", "tracks", "tracker ms CPU / pair", "DIS medium ms CPU / pair",
+         "ratio (median of 3)", "ratios", "median px", "p90 px", "kept", "kept of visible",
+         "kept hidden"],
+        [
+            [
+                f"{r['sequence']} {r['width']}x{r['height']}, {r['frames']} frames",
+                r["tracks"],
+                f"{np.median([x['tracker_ms'] for x in r['repeats']]):.1f}",
+                f"{np.median([x['dis_ms'] for x in r['repeats']]):.1f}",
+                f"{r['ratio']:.2f}",
+                ", ".join(f"{x['ratio']:.2f}" for x in r["repeats"]),
+                f"{r['median_error_px']:.4f}",
+                f"{r['p90_error_px']:.3f}",
+                f"{r['fraction_kept']:.1%}",
+                f"{r['fraction_of_visible_kept']:.1%}",
+                f"{r['fraction_kept_hidden']:.2%}",
+            ]
+            for r in rows
+        ],
+    )  # fmt: skip
+    body += [
+        "",
+        f"Label {label!r}. OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads); CPU time "
+        "of the process (all threads). Tracker: track_frames on the decoded mp4 frames with the "
+        "true first-frame mask, default step; DIS: cv2.DISOPTICAL_FLOW_PRESET_MEDIUM as it is, "
+        "on the same consecutive pairs.",
+    ]
+    write_markdown(out / f"ratio_{label}.md", f"Tracking speed against DIS ({label})", meta, body)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="one small video")
+    parser.add_argument(
+        "--ratio", action="store_true", help="tracker CPU time per frame pair / DIS medium's"
+    )
+    parser.add_argument("--label", default="current", help="name of the --ratio results")
     parser.add_argument("--frames", type=int, default=None, help="frames per video [40; 12]")
     parser.add_argument(
         "--only", default=None, help="comma-separated WIDTHxHEIGHT sizes to run (e.g. 320x320)"
     )
     args = parser.parse_args()
+    if args.ratio:
+        ratio_main(args.frames or 40, args.label)
+        return
     meta = provenance()
     configurations = QUICK if args.quick else FULL
     n_frames = args.frames or (12 if args.quick else 40)

@@ -26,9 +26,16 @@ from pydantic import ValidationError
 from pydantic.fields import FieldInfo
 from tqdm import tqdm
 
+from moju_cli.camera_options import (
+    CameraChoice,
+    camera_choice,
+    intrinsics_options,
+    resolve_intrinsics,
+)
 from moju_cli.stop_reasons import describe_stop
 from moju_cli.video_commands import check_frame_range, tracking_options
 from moju_core import defaults
+from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.datasets import (
     BODY_SEQUENCE_NAMES,
     HARD_SEQUENCE_NAMES,
@@ -244,10 +251,13 @@ def _solve(
     quiet: bool,
     threads: int,
     visibility: np.ndarray | None = None,
+    intrinsics: Intrinsics | None = None,
 ) -> Result:
     """Run :func:`moju_core.reconstruct` with a progress bar on ``threads`` BLAS threads.
 
     ``visibility`` (F, P) bool marks the observed entries of W (None: all observed).
+    ``intrinsics`` is the camera resolved for W's pixels (None: orthographic tracks); the
+    solver does not take a camera matrix yet, so it is only recorded with the result.
     Input errors become CLI errors; solver warnings are printed as ``warning: ...`` lines.
     """
     # Imported here: the solver pulls in scikit-learn, which ``moju --help`` should not wait for.
@@ -462,6 +472,7 @@ def _occlusion_mask(used: np.ndarray | None, of_input: np.ndarray | None) -> np.
     "for a video, coloured from its first frame).",
 )
 @tracking_options(video_only=True)
+@intrinsics_options
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 @_threads_option
 @_solver_options
@@ -473,6 +484,8 @@ def reconstruct(
     step: int | None,
     start: int | None,
     end: int | None,
+    intrinsics_file: Path | None,
+    focal: float | None,
     quiet: bool,
     threads: int,
     **solver_values: Any,
@@ -486,12 +499,18 @@ def reconstruct(
 
     INPUT may also be a video (mp4, webm, avi) or a folder of images: it is tracked first as
     by moju track (--mask, --step, --start, --end), the tracks are written next to the result
-    (OUTPUT's name with .tracks.npz), tracks seen in fewer than 2 frames are dropped, and the
-    lost positions are solved for as missing entries.
+    (OUTPUT's name with .tracks.npz), and the lost positions are solved for as missing
+    entries. From a video or a tracks file alike, tracks seen in fewer than 2 frames are left
+    out, with a warning that says how many.
+
+    The camera: --intrinsics FILE or --focal PIXELS, else the K stored in INPUT, else, for a
+    video or tracks with a frame size, the default (focal 1.2 x the larger image side,
+    principal point at the image centre); the one used is recorded in the result's metadata.
     """
     _check_output(output)
     video = is_video_source(input_file)
     _check_video_options(video, mask=mask, step=step, start=start, end=end)
+    choice = camera_choice(intrinsics_file, focal)
     params = _solver_params(_pop_solver_values(solver_values))
     if video and params.rotations == "known":
         raise click.UsageError(
@@ -512,12 +531,10 @@ def reconstruct(
                 start=start or 0,
                 end=end,
                 quiet=quiet,
+                choice=choice,
             )
         else:
-            try:
-                measurements = read_measurements(input_file)
-            except MeasurementError as exc:
-                raise click.ClickException(str(exc)) from exc
+            measurements = _read_input(Path(input_file), choice)
         # The library's rule: R of INPUT is used unless an estimating method is named, in
         # which case R is only the truth the estimated rotations are scored against.
         method = rotation_method(params.rotations, measurements.rotations is not None)
@@ -528,6 +545,9 @@ def reconstruct(
                 f"has no dataset R (shape {measurements.n_frames} x 2 x 3); add it, or use "
                 "--rotations auto to estimate them"
             )
+        # The camera of W's pixels: --intrinsics / --focal, else INPUT's K, else the default
+        # of its frame size; None for tracks without a frame size (orthographic).
+        intrinsics = measurements.intrinsics
         result = _solve(
             measurements.W,
             params,
@@ -535,8 +555,14 @@ def reconstruct(
             quiet=quiet,
             threads=threads,
             visibility=measurements.visibility,
+            intrinsics=intrinsics,
         )
-        metadata = {"input": Path(input_file).name, "created_by": "moju reconstruct"}
+        metadata: dict[str, Any] = {
+            "input": Path(input_file).name,
+            "created_by": "moju reconstruct",
+        }
+        if intrinsics is not None:
+            metadata["intrinsics"] = intrinsics.to_metadata()
         outputs.write_result(output, result, metadata)
         if ply_dir is not None:
             outputs.write_ply(ply_dir, result.shapes, measurements.faces, measurements.colors)
@@ -546,6 +572,8 @@ def reconstruct(
             result, measurements.n_frames, measurements.n_points, measurements.observed_fraction
         )
     )
+    if intrinsics is not None:
+        click.echo(_camera_line(intrinsics))
     if tracks_path is not None:
         click.echo(f"tracks: {tracks_path}")
     click.echo(f"result: {output}")
@@ -563,6 +591,47 @@ def reconstruct(
         )
         for line in _format_scores(scores, rotations_estimated=not known):
             click.echo(line)
+
+
+def _camera_line(intrinsics: Intrinsics) -> str:
+    """One line: the camera used and where it came from."""
+    cx, cy = intrinsics.principal_point
+    origin = {
+        "given": "given",
+        "focal": "from --focal",
+        "default": "default: 1.2 x the larger image side; give --focal or --intrinsics",
+    }[intrinsics.origin]
+    return (
+        f"camera: focal {intrinsics.fx:g} x {intrinsics.fy:g} px, principal point "
+        f"({cx:g}, {cy:g}) ({origin})"
+    )
+
+
+@contextlib.contextmanager
+def _printed_warnings() -> Iterator[None]:
+    """Print the warnings raised inside as ``warning: ...`` lines on stderr."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        click.echo(f"warning: {message}", err=True)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = show
+        yield
+
+
+def _read_input(path: Path, choice: CameraChoice) -> Measurements:
+    """Read a measurement file, leaving out (with a warning) the tracks seen in one frame
+    only, as for a video; the camera of the command line replaces the file's."""
+    try:
+        with _printed_warnings():
+            measurements = read_measurements(path, short_tracks="drop")
+    except MeasurementError as exc:
+        raise click.ClickException(str(exc)) from exc
+    given = resolve_intrinsics(choice, measurements.frame_size, path.name)
+    if given is not None:
+        measurements.intrinsics = given
+    return measurements
 
 
 def _check_video_options(video: bool, **options: Any) -> None:
@@ -587,24 +656,23 @@ def _track_video_input(
     start: int,
     end: int | None,
     quiet: bool,
+    choice: CameraChoice,
 ) -> Measurements:
-    """Track ``video`` (as ``moju track``), write the solvable tracks to ``tracks_path`` and
-    return them as measurements (NaN where lost, the first frame's colours)."""
-    from moju_cli.video_commands import run_tracking, summary
+    """Track ``video`` (as ``moju track``), write the solvable tracks (with the camera of the
+    command line, if any) to ``tracks_path`` and return them as measurements (NaN where lost,
+    the first frame's colours, the frame size and the camera)."""
+    from moju_cli.video_commands import run_tracking, summary, with_intrinsics
 
     tracks, seconds = run_tracking(
         video, mask=mask, step=step, start=start, end=end, method="dis", quiet=quiet
     )
     click.echo(summary(tracks, seconds))
+    tracks = with_intrinsics(tracks, resolve_intrinsics(choice, tracks.frame_size, video.name))
     try:
-        kept = solvable_tracks(tracks)
+        with _printed_warnings():
+            kept = solvable_tracks(tracks)
     except MeasurementError as exc:
         raise click.ClickException(str(exc)) from exc
-    if kept.n_points < tracks.n_points:
-        click.echo(
-            f"{tracks.n_points - kept.n_points} tracks seen in one frame only are left out; "
-            f"{kept.n_points} are reconstructed"
-        )
     outputs.created.append(tracks_path)
     _write_or_fail(tracks_path, lambda: write_tracks(tracks_path, kept))
     try:
@@ -638,7 +706,9 @@ def evaluate(result_file: str, truth_file: str, as_json: bool) -> None:
     except (OSError, ValueError) as exc:
         raise click.ClickException(str(exc)) from exc
     try:
-        measurements = read_measurements(truth_file)
+        # The points moju reconstruct kept: tracks seen in one frame only are left out.
+        with _printed_warnings():
+            measurements = read_measurements(truth_file, short_tracks="drop")
     except MeasurementError as exc:
         raise click.ClickException(str(exc)) from exc
     if measurements.ground_truth is None:

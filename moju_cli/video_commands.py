@@ -6,6 +6,7 @@ They need OpenCV (``opencv-python-headless``, the ``video`` extra), imported by
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 import warnings
@@ -18,6 +19,8 @@ import click
 import numpy as np
 from tqdm import tqdm
 
+from moju_cli.camera_options import camera_choice, intrinsics_options, resolve_intrinsics
+from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.errors import VideoError
 from moju_core.footage.tracking import (
     DEFAULT_STEP,
@@ -184,6 +187,11 @@ def run_tracking(
     return tracks, time.perf_counter() - tic
 
 
+def with_intrinsics(tracks: Tracks, intrinsics: Intrinsics | None) -> Tracks:
+    """``tracks`` carrying ``intrinsics`` (unchanged when None)."""
+    return tracks if intrinsics is None else dataclasses.replace(tracks, intrinsics=intrinsics)
+
+
 def _check_output(output: Path) -> None:
     if output.suffix.lower() != ".npz":
         raise click.BadParameter(
@@ -210,9 +218,11 @@ def _write(path: Path, tracks: Tracks) -> None:
     "--output",
     required=True,
     type=click.Path(dir_okay=False, path_type=Path),
-    help="Tracks file (npz: W with NaN where lost, visibility, colors, frame_size).",
+    help="Tracks file (npz: W with NaN where lost, visibility, colors, frame_size, and K when "
+    "--intrinsics or --focal is given).",
 )
 @tracking_options()
+@intrinsics_options
 @click.option(
     "--method",
     type=click.Choice(["dis", "farneback"]),
@@ -228,6 +238,8 @@ def track(
     step: int,
     start: int,
     end: int | None,
+    intrinsics_file: Path | None,
+    focal: float | None,
     method: str,
     quiet: bool,
 ) -> None:
@@ -236,13 +248,17 @@ def track(
     A grid of points every --step pixels over the object in frame --start (the --mask, or
     the textured region) is followed by chained optical flow with forward-backward checks and
     re-anchoring to keyframes; a track that fails a check is lost (NaN) from then on.
-    Positions are pixels: x to the right, y down, pixel centres at integers.
+    Positions are pixels: x to the right, y down, pixel centres at integers. The camera
+    matrix given with --intrinsics or --focal is stored with the tracks (K); without one,
+    readers take the default camera of the frame size.
     """
     _check_output(output)
     check_frame_range(start, end)
+    choice = camera_choice(intrinsics_file, focal)
     tracks, seconds = run_tracking(
         video, mask=mask, step=step, start=start, end=end, method=method, quiet=quiet
     )
+    tracks = with_intrinsics(tracks, resolve_intrinsics(choice, tracks.frame_size, video.name))
     _write(output, tracks)
     click.echo(summary(tracks, seconds))
     click.echo(f"tracks: {output}")

@@ -8,6 +8,8 @@ Each ``check_*`` function returns the array converted to the dtype the rest of t
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -24,6 +26,7 @@ __all__ = [
     "check_observations",
     "check_rotations",
     "check_visibility",
+    "solvable_points",
     "tracks_to_W",
     "with_missing",
 ]
@@ -352,6 +355,53 @@ def check_observations(
         return W, observed
     check_observation_counts(np.count_nonzero(observed, axis=0), np.count_nonzero(observed, axis=1))
     return np.where(np.repeat(observed, 2, axis=0), W, 0.0), observed
+
+
+def solvable_points(W: ArrayLike, visibility: ArrayLike | None = None) -> np.ndarray:
+    """Which points the solver can use: those observed in at least
+    :data:`MIN_FRAMES_PER_POINT` frames; warns with how many are left out.
+
+    The one rule for tracks seen in one frame only (a point seen once gives no depth), shared
+    by the tracks of a video (:func:`moju_core.footage.tracking.solvable_tracks`) and a tracks
+    file read with ``short_tracks="drop"`` (:func:`moju_core.io.read_measurements`).
+
+    Parameters
+    ----------
+    W : array_like of shape (2F, P)
+        Image coordinates (rows ``2f``, ``2f+1`` are x, y of frame ``f``); NaN where a point
+        is not observed.
+    visibility : array_like of shape (F, P), bool, optional
+        When given, it must agree with the NaN of W (as in :func:`check_observations`).
+
+    Returns
+    -------
+    keep : ndarray of shape (P,), bool
+        True for the points to keep.
+
+    Warns
+    -----
+    UserWarning
+        When some points are left out: how many, of how many.
+
+    Raises
+    ------
+    MeasurementError
+        For what :func:`check_observations` refuses in W and visibility themselves (layout,
+        dtype, infinite values, NaN in one coordinate, a disagreeing visibility).
+    """
+    W = _check_layout(W, 2, 1)
+    observed = _visibility_of(W, visibility)
+    keep = np.count_nonzero(observed, axis=0) >= MIN_FRAMES_PER_POINT
+    dropped = int(keep.size - np.count_nonzero(keep))
+    if dropped:
+        warnings.warn(
+            f"{dropped} of {keep.size} tracks are seen in fewer than {MIN_FRAMES_PER_POINT} "
+            f"frames (a point seen once gives no depth) and are left out; "
+            f"{keep.size - dropped} are kept",
+            UserWarning,
+            stacklevel=2,
+        )
+    return keep
 
 
 def with_missing(W: ArrayLike, visibility: ArrayLike) -> np.ndarray:

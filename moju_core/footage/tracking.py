@@ -44,10 +44,11 @@ from typing import Literal
 
 import numpy as np
 
+from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.errors import Cancelled, VideoError, VideoTooLarge
 from moju_core.footage.video import DEFAULT_LIMITS, VideoLimits, check_clip, open_video, read_mask
 from moju_core.io import Measurements, atomic_output
-from moju_core.validation import MIN_FRAMES_PER_POINT, MIN_POINTS_PER_FRAME
+from moju_core.validation import MIN_POINTS_PER_FRAME, solvable_points
 
 __all__ = [
     "DEFAULT_STEP",
@@ -69,11 +70,22 @@ FlowMethod = Literal["dis", "farneback"]
 DEFAULT_STEP = 4
 
 # Sundaram et al.'s forward-backward tolerance: relative part and constant part (pixels^2).
-_FB_RELATIVE, _FB_CONSTANT = 0.01, 0.5
+_FB_RELATIVE, _FB_CONSTANT = 0.01, 0.8
 # Sundaram et al.'s motion-boundary tolerance on |grad u|^2 + |grad v|^2: relative, constant.
 _BOUNDARY_RELATIVE, _BOUNDARY_CONSTANT = 0.01, 0.05
 # A direct match to the keyframe replaces the chained position when the two agree this well.
 _ANCHOR_AGREEMENT = 1.5
+# Points per row of the maps that sample a flow (remap takes fewer than 32767 a side).
+_SAMPLE_ROW = 4096
+# The flow gradient of the motion-boundary test: central differences this many pixels apart.
+_GRADIENT_SPACING = 3.0
+# Flows are computed on the box around the live tracks widened by this many pixels (the
+# motion between the frames compared stays well within it; a track that leaves the box is
+# lost). At 48 px the 640 x 480 paper's median error grew from 0.053 to 0.067 px (DIS's
+# coarse levels see less context); at 96 px it was unchanged.
+_REGION_MARGIN = 96
+# The keyframe match runs every this many frames.
+_ANCHOR_EVERY = 2
 # Below this fraction of live tracks anchored to the keyframe, the current frame becomes it.
 _KEYFRAME_SUCCESS = 0.8
 # Textured region: local standard deviation of the grey levels (0..255) over a window.
@@ -117,12 +129,16 @@ class Tracks:
         RGB of every point in the first frame.
     frame_size : (int, int)
         (width, height) of the frames in pixels.
+    intrinsics : Intrinsics or None
+        The camera matrix the user gave for the video (:mod:`moju_core.cameras.intrinsics`);
+        None when none was given (readers then take the default camera of ``frame_size``).
     """
 
     W: np.ndarray
     visibility: np.ndarray
     colors: np.ndarray
     frame_size: tuple[int, int]
+    intrinsics: Intrinsics | None = None
 
     @property
     def n_frames(self) -> int:
@@ -182,20 +198,68 @@ def count_grid_points(mask: np.ndarray, step: int = DEFAULT_STEP) -> int:
     return int(_grid(np.asarray(mask, dtype=bool), step).shape[0])
 
 
+@dataclass(frozen=True)
+class DISSettings:
+    """Settings of one OpenCV DIS flow (see ``cv2.DISOpticalFlow``), starting from the
+    medium preset.
+
+    Attributes
+    ----------
+    finest_scale : int
+        Finest pyramid level computed: 0 is the full resolution, 1 half (the preset's).
+    patch_stride : int
+        Pixels between the patches matched (the preset: 3).
+    gradient_descent_iterations : int
+        Iterations of each patch's inverse search (the preset: 25).
+    variational_refinement_iterations : int
+        Iterations of the variational refinement at every level (the preset: 5).
+    """
+
+    finest_scale: int = 1
+    patch_stride: int = 3
+    gradient_descent_iterations: int = 25
+    variational_refinement_iterations: int = 5
+
+
+#: OpenCV's medium preset as it is: the unit of the tracker's speed (benchmarks/tracking.py).
+DIS_MEDIUM = DISSettings()
+#: Forward flow between consecutive frames, the one the tracks follow: the full resolution
+#: (the preset stops at half), with patches every 6 pixels instead of 3, 8 descent iterations
+#: instead of 25 and no variational refinement, which costs about 0.7 of the preset (at full
+#: resolution the whole preset costs 4 times as much) and was more accurate than the preset
+#: on the rendered videos (median error per frame pair 0.024 px against 0.040 on the 640 x 480
+#: paper, 0.052 against 0.11 on the 320 x 240 face).
+CHAIN_DIS = DISSettings(
+    finest_scale=0, patch_stride=6, gradient_descent_iterations=8,
+    variational_refinement_iterations=0,
+)  # fmt: skip
+#: Backward flow between consecutive frames, for the forward-backward check: the same
+#: settings. (Cheaper ones, at half resolution or with sparser patches, lost a small object
+#: moving across a background: its flow is wrong there.)
+CHECK_DIS = CHAIN_DIS
+#: Flow from the keyframe, the anchor against drift: across many frames the surface has
+#: deformed, and only the full resolution with variational refinement stays accurate (4
+#: frames apart on the face: median 0.09 px against 0.26 for the preset at half resolution;
+#: without refinement the 90th percentile grows to several pixels). Patches every 4 pixels and
+#: 3 refinement iterations cost 2.6 times the preset, against 4 for the whole preset at full
+#: resolution, for the same accuracy.
+ANCHOR_DIS = DISSettings(finest_scale=0, patch_stride=4, variational_refinement_iterations=3)
+
+
 class _Flow:
     """Dense optical flow between grey frames: (H, W, 2) float32 displacements in pixels."""
 
-    def __init__(self, method: FlowMethod) -> None:
+    def __init__(self, method: FlowMethod, settings: DISSettings = DIS_MEDIUM) -> None:
         import cv2
 
         self._cv2 = cv2
         self.method = method
         if method == "dis":
             self._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-            # The preset stops at half resolution; the full-resolution level was three times
-            # more accurate on the rendered test videos (median error per frame pair 0.04 px
-            # instead of 0.12) for about twice the time.
-            self._dis.setFinestScale(0)
+            self._dis.setFinestScale(settings.finest_scale)
+            self._dis.setPatchStride(settings.patch_stride)
+            self._dis.setGradientDescentIterations(settings.gradient_descent_iterations)
+            self._dis.setVariationalRefinementIterations(settings.variational_refinement_iterations)
         elif method != "farneback":
             raise ValueError(f"method must be 'dis' or 'farneback', got {method!r}")
 
@@ -209,14 +273,22 @@ class _Flow:
 
     def sample(self, flow: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Bilinear samples of ``flow`` at ``points`` (n, 2) inside the frame, (n, 2)."""
-        if points.shape[0] == 0:
+        n = points.shape[0]
+        if n == 0:
             return np.zeros((0, 2))
-        grid = points.astype(np.float32).reshape(-1, 1, 2)
+        # remap takes maps of fewer than 32767 rows and columns: the points are laid out as
+        # rows of _SAMPLE_ROW (padded with the last point).
+        rows = -(-n // _SAMPLE_ROW)
+        columns = -(-n // rows)
+        grid = np.empty((rows * columns, 2), dtype=np.float32)
+        grid[:n] = points
+        grid[n:] = points[-1]
+        grid = grid.reshape(rows, columns, 2)
         sampled = self._cv2.remap(
             flow, grid[..., 0], grid[..., 1], self._cv2.INTER_LINEAR,
             borderMode=self._cv2.BORDER_REPLICATE,
         )  # fmt: skip
-        return sampled.reshape(-1, 2).astype(np.float64)
+        return sampled.reshape(-1, 2)[:n].astype(np.float64)
 
 
 def _consistent(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
@@ -226,19 +298,23 @@ def _consistent(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
     return error <= _FB_RELATIVE * scale + _FB_CONSTANT
 
 
-def _flow_gradient(flow: np.ndarray) -> np.ndarray:
-    """``|grad u|^2 + |grad v|^2`` of a flow field (H, W, 2), by central differences, as
-    (H, W, 2) float32 (both channels equal, so that it samples like a flow)."""
-    gradient = np.zeros(flow.shape[:2], dtype=np.float32)
-    for channel in range(2):
-        d_y, d_x = np.gradient(flow[:, :, channel])
-        gradient += d_x * d_x + d_y * d_y
-    return np.repeat(gradient[:, :, None], 2, axis=2)
+def _flow_gradient(flow: _Flow, field: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(n,) ``|grad u|^2 + |grad v|^2`` of the flow ``field`` (H, W, 2) at ``points`` (n, 2),
+    by central differences of bilinear samples one pixel apart (at the points only, not over
+    the whole frame)."""
+    h = _GRADIENT_SPACING
+    offsets = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    n = points.shape[0]
+    around = (points[None, :, :] + offsets[:, None, :]).reshape(-1, 2)
+    samples = flow.sample(field, around).reshape(4, n, 2)
+    d_x = (samples[0] - samples[1]) / (2 * h)
+    d_y = (samples[2] - samples[3]) / (2 * h)
+    return np.sum(d_x * d_x, axis=1) + np.sum(d_y * d_y, axis=1)
 
 
 def _motion_boundary(gradient: np.ndarray, forward: np.ndarray) -> np.ndarray:
-    """(n,) bool: Sundaram et al.'s motion-boundary test on sampled flow gradients (n, 2)."""
-    return gradient[:, 0] > _BOUNDARY_RELATIVE * np.sum(forward**2, axis=1) + _BOUNDARY_CONSTANT
+    """(n,) bool: Sundaram et al.'s motion-boundary test on flow gradients (n,)."""
+    return gradient > _BOUNDARY_RELATIVE * np.sum(forward**2, axis=1) + _BOUNDARY_CONSTANT
 
 
 def _inside(points: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -251,11 +327,42 @@ def _inside(points: np.ndarray, width: int, height: int) -> np.ndarray:
     )
 
 
+@dataclass(frozen=True)
+class _Region:
+    """A box of the frame, pixels ``x0 <= x < x1``, ``y0 <= y < y1``, in a frame of
+    ``width`` x ``height``."""
+
+    x0: int
+    y0: int
+    x1: int
+    y1: int
+    width: int
+    height: int
+
+    def of(self, image: np.ndarray) -> np.ndarray:
+        """The box's part of ``image`` (H, W), contiguous (as DIS needs)."""
+        return np.ascontiguousarray(image[self.y0 : self.y1, self.x0 : self.x1])
+
+    def local(self, points: np.ndarray) -> np.ndarray:
+        """Frame positions (n, 2) in the box's coordinates."""
+        return points - np.array([self.x0, self.y0], dtype=np.float64)
+
+    def holds(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: positions (n, 2) inside the frame and the box."""
+        local = self.local(points)
+        return _inside(points, self.width, self.height) & _inside(
+            local, self.x1 - self.x0, self.y1 - self.y0
+        )
+
+
 class _Tracker:
     """State of a tracking run: live tracks, their positions, and the keyframe."""
 
     def __init__(self, first_grey: np.ndarray, points: np.ndarray, method: FlowMethod) -> None:
-        self.flow = _Flow(method)
+        # One flow object (and its buffers) per role, reused for every frame.
+        self.chain = _Flow(method, CHAIN_DIS)
+        self.check = _Flow(method, CHECK_DIS)
+        self.anchor = _Flow(method, ANCHOR_DIS)
         self.height, self.width = first_grey.shape
         self.previous = first_grey
         self.positions = points.copy()  # (P, 2), NaN once lost
@@ -269,11 +376,16 @@ class _Tracker:
         live = np.flatnonzero(self.alive)
         if live.size == 0:
             return  # every track is lost; nothing left to match
-        moved, ok = self._match(self.previous, grey, self.positions[live], True)
+        moved, ok = self._follow(grey, self.positions[live])
         renew = False
-        if self.key_index < self.index - 1:
-            anchored, anchor_ok = self._match(self.key_grey, grey, self.key_positions[live], False)
-            anchor_ok &= ok & (np.linalg.norm(anchored - moved, axis=1) <= _ANCHOR_AGREEMENT)
+        since_key = self.index - self.key_index
+        if since_key > 1 and since_key % _ANCHOR_EVERY == 0:
+            start = self.key_positions[live]
+            region = self._region(start, moved[ok])
+            forward = self.anchor(region.of(self.key_grey), region.of(grey))
+            anchored = start + self.anchor.sample(forward, region.local(start))
+            anchor_ok = ok & region.holds(anchored)
+            anchor_ok &= np.linalg.norm(anchored - moved, axis=1) <= _ANCHOR_AGREEMENT
             moved[anchor_ok] = anchored[anchor_ok]
             renew = anchor_ok.sum() < _KEYFRAME_SUCCESS * ok.sum()
         self.positions[live] = np.where(ok[:, None], moved, np.nan)
@@ -283,25 +395,31 @@ class _Tracker:
             self.key_index = self.index
         self.previous = grey
 
-    def _match(
-        self, first: np.ndarray, second: np.ndarray, points: np.ndarray, boundaries: bool
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Positions in ``second`` of ``points`` of ``first`` and whether they passed the checks.
-
-        ``boundaries`` adds the motion-boundary check (for consecutive frames only: the flow
-        to a keyframe varies more across a deforming surface without any boundary).
-        """
-        forward = self.flow(first, second)
-        backward = self.flow(second, first)
-        moved_by = self.flow.sample(forward, points)
+    def _follow(self, grey: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (n, 2) in ``grey`` of ``points`` (n, 2) of the previous frame, and (n,)
+        whether they passed the frame, forward-backward and motion-boundary checks."""
+        region = self._region(points)
+        first, second = region.of(self.previous), region.of(grey)
+        forward = self.chain(first, second)
+        moved_by = self.chain.sample(forward, region.local(points))
         moved = points + moved_by
-        inside = _inside(moved, self.width, self.height)
+        ok = region.holds(moved)
         back = np.zeros_like(moved_by)
-        back[inside] = self.flow.sample(backward, moved[inside])
-        ok = inside & _consistent(moved_by, back)
-        if boundaries:
-            ok &= ~_motion_boundary(self.flow.sample(_flow_gradient(forward), points), moved_by)
+        back[ok] = self.check.sample(self.check(second, first), region.local(moved[ok]))
+        ok &= _consistent(moved_by, back)
+        gradient = _flow_gradient(self.chain, forward, region.local(points))
+        ok &= ~_motion_boundary(gradient, moved_by)
         return moved, ok
+
+    def _region(self, *points: np.ndarray) -> _Region:
+        """The part of the frame the flows are computed on: the box around ``points`` (each
+        (n, 2)) widened by :data:`_REGION_MARGIN`, within the frame."""
+        every = np.concatenate(points)
+        low = np.floor(every.min(axis=0)) - _REGION_MARGIN
+        high = np.ceil(every.max(axis=0)) + _REGION_MARGIN + 1
+        x0, y0 = (max(int(value), 0) for value in low)
+        x1, y1 = min(int(high[0]), self.width), min(int(high[1]), self.height)
+        return _Region(x0, y0, x1, y1, self.width, self.height)
 
 
 def track_frames(
@@ -490,29 +608,34 @@ def _bounded(frames: Iterator[np.ndarray], max_frames: int, name: str) -> Iterat
 
 def write_tracks(path: str | os.PathLike, tracks: Tracks) -> None:
     """Write ``tracks`` to an npz: ``W`` (2F, P) float64 with NaN where lost, ``visibility``
-    (F, P) bool, ``colors`` (P, 3) uint8 and ``frame_size`` (2,) int64 = (width, height).
+    (F, P) bool, ``colors`` (P, 3) uint8, ``frame_size`` (2,) int64 = (width, height) and,
+    when the tracks carry intrinsics other than the default, ``K`` (3, 3) float64 in pixels.
 
     The file is written under a temporary name and renamed, so no partial file is left.
     """
+    arrays = {
+        "W": tracks.W,
+        "visibility": tracks.visibility,
+        "colors": tracks.colors,
+        "frame_size": np.asarray(tracks.frame_size, dtype=np.int64),
+    }
+    if tracks.intrinsics is not None and tracks.intrinsics.origin != "default":
+        arrays["K"] = tracks.intrinsics.K
     with atomic_output(path) as temporary, open(temporary, "wb") as handle:
-        np.savez_compressed(
-            handle,
-            W=tracks.W,
-            visibility=tracks.visibility,
-            colors=tracks.colors,
-            frame_size=np.asarray(tracks.frame_size, dtype=np.int64),
-        )
+        np.savez_compressed(handle, **arrays)
 
 
 def solvable_tracks(tracks: Tracks) -> Tracks:
-    """The tracks the solver can use: those with a position in at least
-    :data:`moju_core.validation.MIN_FRAMES_PER_POINT` frames (a track lost right after the
-    first frame gives no depth), in their original order.
+    """The tracks the solver can use, in their original order: those with a position in at
+    least :data:`moju_core.validation.MIN_FRAMES_PER_POINT` frames (a track lost right after
+    the first frame gives no depth), chosen and announced by
+    :func:`moju_core.validation.solvable_points` (a warning says how many are left out), the
+    rule a tracks file read with ``short_tracks="drop"`` follows too.
 
     Raises VideoError when fewer than :data:`MIN_POINTS_PER_FRAME` tracks are left, in all or
     in some frame (frames are numbered from the first tracked one).
     """
-    keep = np.count_nonzero(tracks.visibility, axis=0) >= MIN_FRAMES_PER_POINT
+    keep = solvable_points(tracks.W, tracks.visibility)
     if np.count_nonzero(keep) < MIN_POINTS_PER_FRAME:
         raise VideoError(
             f"only {int(np.count_nonzero(keep))} of {tracks.n_points} tracks were followed "
@@ -536,9 +659,18 @@ def solvable_tracks(tracks: Tracks) -> Tracks:
         visibility=np.ascontiguousarray(tracks.visibility[:, keep]),
         colors=np.ascontiguousarray(tracks.colors[keep]),
         frame_size=tracks.frame_size,
+        intrinsics=tracks.intrinsics,
     )
 
 
 def tracks_measurements(tracks: Tracks) -> Measurements:
-    """``tracks`` as solver input: W (NaN where lost), visibility and the points' colours."""
-    return Measurements(W=tracks.W, visibility=tracks.visibility, colors=tracks.colors)
+    """``tracks`` as solver input: W (NaN where lost), visibility, the points' colours, the
+    frame size and the intrinsics (the default camera of the frame size when none was
+    given)."""
+    return Measurements(
+        W=tracks.W,
+        visibility=tracks.visibility,
+        colors=tracks.colors,
+        frame_size=tracks.frame_size,
+        intrinsics=tracks.intrinsics,
+    )

@@ -11,12 +11,20 @@ Dataset names of an input file (npz members or HDF5 root datasets):
   is not observed in a frame is NaN there (x and y both);
 * optional ``visibility`` (F x P bool, True = observed), which must agree with the NaN of W;
 * optional ``R`` (F x 2 x 3) known rotations, ``gt`` (F x P x 3) ground truth,
-  ``faces`` (M x 3) triangle indices, ``colors`` (P x 3, or P x 4 with alpha) in 0..255.
+  ``faces`` (M x 3) triangle indices, ``colors`` (P x 3, or P x 4 with alpha) in 0..255;
+* optional camera: ``K`` (3 x 3, pixels) the camera matrix of W's pixels and ``frame_size``
+  (2,) integers = (width, height) in pixels (:mod:`moju_core.cameras.intrinsics`). With a
+  ``frame_size`` and no ``K`` the default camera of that size is used (focal length 1.2 x the
+  larger side, principal point at the image centre; its origin says ``"default"``); with
+  neither, the tracks have no camera (orthographic). Both are checked from their headers
+  (exact shapes (3, 3) and (2,)) before their data is read.
 
 Other datasets are ignored. A CSV input is in long format with the header ``frame,point,x,y``,
 one row per observed (frame, point) pair: a missing row is a point not observed in that frame.
 Every point must be observed in at least 2 frames and every frame must observe at least 3
-points (:func:`moju_core.validation.check_observations`).
+points (:func:`moju_core.validation.check_observations`); with ``short_tracks="drop"`` the
+points observed in fewer than 2 frames are left out with a warning instead, as the tracks of
+a video are (:func:`moju_core.validation.solvable_points`).
 
 Result files hold ``shapes`` (F x P x 3, every point in every frame, the unobserved ones
 filled in by the solver), ``visibility`` (F x P bool, the observations used), ``rotations``

@@ -11,7 +11,7 @@ from typing import IO
 import numpy as np
 
 from moju_core.errors import MeasurementError, MeasurementTooLarge
-from moju_core.io._sources import Admit, refuse_oversized
+from moju_core.io._sources import Admit, ShortTracks, refuse_oversized
 from moju_core.io.measurements import Measurements
 from moju_core.validation import check_observation_counts
 
@@ -224,6 +224,7 @@ def read_csv(
     max_frames: int | None,
     max_points: int | None,
     admit: Admit | None = None,
+    short_tracks: ShortTracks = "refuse",
 ) -> Measurements:
     """Read a long-format CSV (frame,point,x,y) in two streamed passes.
 
@@ -271,6 +272,8 @@ def read_csv(
             flat[(2 * frames + 1) * n_points + points] = table[:, 3]
     if W is None or np.unique(linear).size != n_rows:
         raise MeasurementError(_repeated_pairs(linear, n_frames, n_points, source_name))
+    if short_tracks == "drop":
+        return Measurements.of_solvable_points(W)
     if n_frames >= 2 and n_points >= 3:  # else Measurements names the size problem
         check_observation_counts(
             np.bincount(linear % n_points, minlength=n_points),

@@ -10,11 +10,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from moju_core.errors import MeasurementError
-from moju_core.io._sources import Admit, refuse_oversized
+from moju_core.io._sources import Admit, ShortTracks, refuse_oversized
 from moju_core.io.measurements import Measurements
 from moju_core.validation import check_dtype, tracks_to_W
 
-_OPTIONAL_NAMES = ("visibility", "R", "gt", "faces", "colors")
+_OPTIONAL_NAMES = ("visibility", "R", "gt", "faces", "colors", "K", "frame_size")
+#: Exact shapes of the camera datasets (checked before their data is read).
+_CAMERA_SHAPES = {"K": (3, 3), "frame_size": (2,)}
 DATASET_NAMES = ("W", "tracks", *_OPTIONAL_NAMES)
 _EXPECTED_MAIN = "W (2F x P: rows 2f, 2f+1 are x, y of frame f) or tracks (F x P x 2)"
 
@@ -61,6 +63,8 @@ def _largest_allowed(name: str, n_frames: int, n_points: int, max_points: int | 
         return 3 * n_frames * n_points
     if name == "colors":
         return 4 * n_points
+    if name in _CAMERA_SHAPES:
+        return int(np.prod(_CAMERA_SHAPES[name]))
     if max_points is None:  # faces: only bounded when the caller sets limits
         return -1
     return 3 * _MAX_FACES_PER_POINT * max_points
@@ -72,8 +76,13 @@ def measurements_from_declared(
     max_frames: int | None,
     max_points: int | None,
     admit: Admit | None = None,
+    short_tracks: ShortTracks = "refuse",
 ) -> Measurements:
-    """Check headers, read the datasets and validate them into :class:`Measurements`."""
+    """Check headers, read the datasets and validate them into :class:`Measurements`.
+
+    ``short_tracks="drop"`` leaves out the points seen in fewer than 2 frames
+    (:meth:`Measurements.of_solvable_points`) instead of refusing the file.
+    """
     if "W" in declared and "tracks" in declared:
         raise MeasurementError(
             f"{source_name} holds both W and tracks; keep one of them, the two would disagree"
@@ -94,8 +103,18 @@ def measurements_from_declared(
         if name not in declared:
             continue
         if not (name == "visibility" and declared[name].dtype.kind == "b"):
-            integer = name in ("visibility", "faces", "colors")
+            integer = name in ("visibility", "faces", "colors", "frame_size")
             check_dtype(name, declared[name].dtype, integer=integer)
+        if name in _CAMERA_SHAPES and declared[name].shape != _CAMERA_SHAPES[name]:
+            raise MeasurementError(
+                f"{name} in {source_name} has shape {declared[name].shape}; it needs shape "
+                f"{_CAMERA_SHAPES[name]}: "
+                + (
+                    "the 3 x 3 camera matrix in pixels"
+                    if name == "K"
+                    else "(width, height) of the frames in pixels"
+                )
+            )
         size = int(np.prod(declared[name].shape, dtype=object))
         largest = _largest_allowed(name, n_frames, n_points, max_points)
         if largest >= 0 and size > largest:
@@ -106,11 +125,14 @@ def measurements_from_declared(
             )
     arrays = {name: declared[name].read() for name in DATASET_NAMES if name in declared}
     W = arrays["W"] if main == "W" else tracks_to_W(arrays["tracks"])
-    return Measurements(
+    build = Measurements.of_solvable_points if short_tracks == "drop" else Measurements
+    return build(
         W=W,
         rotations=arrays.get("R"),
         ground_truth=arrays.get("gt"),
         faces=arrays.get("faces"),
         colors=arrays.get("colors"),
         visibility=arrays.get("visibility"),
+        intrinsics=arrays.get("K"),
+        frame_size=arrays.get("frame_size"),
     )

@@ -9,7 +9,7 @@ import h5py
 
 from moju_core.errors import MeasurementError
 from moju_core.io._declared import DATASET_NAMES, Declared, measurements_from_declared
-from moju_core.io._sources import Admit, Source
+from moju_core.io._sources import Admit, ShortTracks, Source
 from moju_core.io.measurements import Measurements
 
 
@@ -100,13 +100,16 @@ def read_h5(
     max_frames: int | None,
     max_points: int | None,
     admit: Admit | None = None,
+    short_tracks: ShortTracks = "refuse",
 ) -> Measurements:
     # A path lets HDF5 use its own file driver, which is faster than going through Python.
     target = source if isinstance(source, (str, os.PathLike)) else handle
     try:
         with h5py.File(target, "r") as h5:
             declared = _h5_declared(h5, source_name)
-            return measurements_from_declared(declared, source_name, max_frames, max_points, admit)
+            return measurements_from_declared(
+                declared, source_name, max_frames, max_points, admit, short_tracks
+            )
     except MeasurementError:
         raise
     except Exception as exc:

@@ -11,7 +11,7 @@ import numpy.lib.format as npy_format
 
 from moju_core.errors import MeasurementError
 from moju_core.io._declared import DATASET_NAMES, Declared, measurements_from_declared
-from moju_core.io._sources import Admit
+from moju_core.io._sources import Admit, ShortTracks
 from moju_core.io.measurements import Measurements
 
 
@@ -50,6 +50,7 @@ def read_npz(
     max_frames: int | None,
     max_points: int | None,
     admit: Admit | None = None,
+    short_tracks: ShortTracks = "refuse",
 ) -> Measurements:
     try:
         with zipfile.ZipFile(handle) as archive:
@@ -67,7 +68,9 @@ def read_npz(
                 size = offset + dtype.itemsize * int(np.prod(shape, dtype=object))
                 read = functools.partial(_read_npz_member, archive, info, size, source_name)
                 declared[name] = Declared(shape, dtype, read)
-            return measurements_from_declared(declared, source_name, max_frames, max_points, admit)
+            return measurements_from_declared(
+                declared, source_name, max_frames, max_points, admit, short_tracks
+            )
     except MeasurementError:
         raise
     except Exception as exc:

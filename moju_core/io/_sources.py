@@ -9,7 +9,7 @@ import io
 import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Literal
 
 from moju_core.errors import MeasurementError, MeasurementTooLarge
 from moju_core.file_types import HEAD_BYTES, array_file_type
@@ -19,6 +19,11 @@ Source = str | os.PathLike | IO[bytes]
 #: Called with (F, P) once a file's sizes are known and before its data is read; raises
 #: MeasurementTooLarge (or another MeasurementError) to refuse the file.
 Admit = Callable[[int, int], None]
+
+#: What a reader does with points observed in fewer than 2 frames: refuse the file (the
+#: default) or leave them out with a warning (:func:`moju_core.validation.solvable_points`).
+ShortTracks = Literal["refuse", "drop"]
+SHORT_TRACKS = ("refuse", "drop")
 
 #: Input formats understood by :func:`read_measurements`.
 FORMATS = ("npz", "h5", "csv")
@@ -72,6 +77,11 @@ def detect_format(handle: IO[bytes], source: Source, source_name: str) -> str:
 def check_limit(limit: int | None, what: str) -> None:
     if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
         raise ValueError(f"{what} limit must be a positive integer or None, got {limit!r}")
+
+
+def check_short_tracks(short_tracks: str) -> None:
+    if short_tracks not in SHORT_TRACKS:
+        raise ValueError(f"short_tracks must be one of {SHORT_TRACKS}, got {short_tracks!r}")
 
 
 def refuse_oversized(

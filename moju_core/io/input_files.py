@@ -16,9 +16,11 @@ from moju_core.io._sources import (
     FORMATS,
     Admit,
     PathLike,
+    ShortTracks,
     Source,
     binary_input,
     check_limit,
+    check_short_tracks,
     detect_format,
     display_name,
 )
@@ -33,6 +35,7 @@ def read_measurements(
     max_points: int | None = None,
     max_frames: int | None = None,
     admit: Admit | None = None,
+    short_tracks: ShortTracks = "refuse",
 ) -> Measurements:
     """Read and validate measurements from an npz, HDF5 or CSV file.
 
@@ -51,6 +54,11 @@ def read_measurements(
         that size is built: from the headers for npz and HDF5, after a first streamed pass
         over the rows (one chunk in memory) for CSV. It refuses a file by raising
         :class:`MeasurementTooLarge` (e.g. when the solver's memory estimate is too large).
+    short_tracks : {"refuse", "drop"}, default "refuse"
+        Points observed in fewer than 2 frames: refuse the file, or leave them out with a
+        warning that says how many (as tracks of a video are,
+        :func:`moju_core.validation.solvable_points`); their ground truth and colours go too,
+        and triangles that use them.
 
     Returns
     -------
@@ -69,6 +77,7 @@ def read_measurements(
     """
     check_limit(max_points, "max_points")
     check_limit(max_frames, "max_frames")
+    check_short_tracks(short_tracks)
     if format is not None:
         if format.lower() not in FORMAT_ALIASES:
             raise MeasurementError(
@@ -80,10 +89,10 @@ def read_measurements(
         if format is None:
             format = detect_format(handle, source, source_name)
         if format == "npz":
-            return read_npz(handle, source_name, max_frames, max_points, admit)
+            return read_npz(handle, source_name, max_frames, max_points, admit, short_tracks)
         if format == "h5":
-            return read_h5(source, handle, source_name, max_frames, max_points, admit)
-        return read_csv(handle, source_name, max_frames, max_points, admit)
+            return read_h5(source, handle, source_name, max_frames, max_points, admit, short_tracks)
+        return read_csv(handle, source_name, max_frames, max_points, admit, short_tracks)
 
 
 def _measurement_arrays(measurements: Measurements) -> dict[str, np.ndarray]:
@@ -94,6 +103,18 @@ def _measurement_arrays(measurements: Measurements) -> dict[str, np.ndarray]:
         "gt": measurements.ground_truth,
         "faces": measurements.faces,
         "colors": measurements.colors,
+        "frame_size": (
+            None
+            if measurements.frame_size is None
+            else np.asarray(measurements.frame_size, dtype=np.int64)
+        ),
+        # The default camera is not stored: read back, it is derived from the frame size again
+        # and still says "default".
+        "K": (
+            None
+            if measurements.intrinsics is None or measurements.intrinsics.origin == "default"
+            else measurements.intrinsics.K
+        ),
     }
     arrays.update({name: value for name, value in optional.items() if value is not None})
     return arrays

@@ -259,3 +259,129 @@ def test_track_and_reconstruct_share_the_tracking_options() -> None:
         said = reconstructed[name].help.removeprefix("Video only, as for moju track: ")
         assert sentence(said) == sentence(tracked[name].help), name
     assert tracked["step"].default == 4 and tracked["start"].default == 0
+
+
+# --- the camera and the tracker's own output -----------------------------------------------
+
+
+def test_track_stores_the_camera_it_is_given(files, tmp_path):
+    focal = tmp_path / "focal.npz"
+    outcome = _run("track", str(files["video"]), "-o", str(focal), "--step", "8",
+                   "--focal", "200", "-q")  # fmt: skip
+    assert outcome.exit_code == 0, outcome.output
+    with np.load(focal) as data:
+        np.testing.assert_array_equal(data["K"], [[200, 0, 79.5], [0, 200, 59.5], [0, 0, 1]])
+    matrix = tmp_path / "K.txt"
+    matrix.write_text("150, 0, 80\n0, 160, 60\n0, 0, 1\n")
+    given = tmp_path / "given.npz"
+    outcome = _run("track", str(files["video"]), "-o", str(given), "--step", "8",
+                   "--intrinsics", str(matrix), "-q")  # fmt: skip
+    assert outcome.exit_code == 0, outcome.output
+    with np.load(given) as data:
+        np.testing.assert_array_equal(data["K"], [[150, 0, 80], [0, 160, 60], [0, 0, 1]])
+
+
+@pytest.mark.parametrize(
+    ("content", "exit_code", "message"),
+    [
+        ("1 0 0\n0 1 0\n0 0 1\n", 2, "use one of them"),  # with --focal as well
+        ("1 0 0\n0 1 0\n", 1, "three lines of three numbers"),
+    ],
+)
+def test_track_refuses_a_bad_camera_before_tracking(files, tmp_path, content, exit_code, message):
+    matrix = tmp_path / "K.txt"
+    matrix.write_text(content)
+    extra = ["--focal", "100"] if exit_code == 2 else []
+    output = tmp_path / "tracks.npz"
+    outcome = _run("track", str(files["video"]), "-o", str(output), "--intrinsics", str(matrix),
+                   *extra)  # fmt: skip
+    assert outcome.exit_code == exit_code
+    assert message in outcome.stderr
+    assert not output.exists()
+
+
+def _warned_drops(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if "seen in fewer than 2 frames" in line]
+
+
+@pytest.fixture(scope="module")
+def face_files(tmp_path_factory):
+    """The face (160 x 120, 12 frames), whose tracker output has tracks seen in one frame."""
+    rendered = render_sequence("face1", width=160, height=120, n_frames=N_FRAMES)
+    directory = tmp_path_factory.mktemp("face")
+    video = write_video(directory / "face.mp4", rendered.frames)
+    mask = directory / "mask.png"
+    cv2.imwrite(str(mask), rendered.mask.astype(np.uint8) * 255)
+    return {"video": video, "mask": mask}
+
+
+def test_reconstruct_takes_the_trackers_own_output_as_the_video(face_files, tmp_path):
+    """A tracks file as moju track writes it, tracks seen once included, is solved as the
+    video is: the same tracks left out, with the same warning, the same points solved."""
+    files = face_files
+    tracks = tmp_path / "tracks.npz"
+    outcome = _run("track", str(files["video"]), "--mask", str(files["mask"]), "-o",
+                   str(tracks), "--step", "6", "-q")  # fmt: skip
+    assert outcome.exit_code == 0, outcome.output
+    with np.load(tracks) as data:
+        seen = data["visibility"].sum(axis=0)
+    short = int(np.count_nonzero(seen < 2))
+    assert short > 0  # the tracker loses some tracks right after the first frame
+    from_file = tmp_path / "from_file.npz"
+    outcome = _run("reconstruct", str(tracks), "-o", str(from_file), "--max-iter", "2", "-q")
+    assert outcome.exit_code == 0, outcome.output
+    warned = _warned_drops(outcome.stderr)
+    assert warned == [
+        f"warning: {short} of {seen.size} tracks are seen in fewer than 2 frames (a point "
+        f"seen once gives no depth) and are left out; {seen.size - short} are kept"
+    ]
+    assert "(default: 1.2 x the larger image side" in outcome.stdout
+    from_video = tmp_path / "from_video.npz"
+    outcome = _run("reconstruct", str(files["video"]), "--mask", str(files["mask"]), "-o",
+                   str(from_video), "--step", "6", "--max-iter", "2", "-q")  # fmt: skip
+    assert outcome.exit_code == 0, outcome.output
+    assert _warned_drops(outcome.stderr) == warned
+    from moju_core.io import read_result
+
+    file_result, video_result = read_result(from_file), read_result(from_video)
+    assert file_result.shapes.shape == video_result.shapes.shape
+    assert file_result.shapes.shape[1] == seen.size - short
+    np.testing.assert_array_equal(file_result.visibility, video_result.visibility)
+    default = {"K": [[192.0, 0.0, 79.5], [0.0, 192.0, 59.5], [0.0, 0.0, 1.0]],
+               "origin": "default"}  # fmt: skip
+    assert file_result.metadata["intrinsics"] == video_result.metadata["intrinsics"] == default
+
+
+def test_reconstruct_takes_the_camera_options(files, tmp_path):
+    tracks = tmp_path / "tracks.npz"
+    assert _run("track", str(files["video"]), "-o", str(tracks), "--step", "8",
+                "-q").exit_code == 0  # fmt: skip
+    output = tmp_path / "r.npz"
+    outcome = _run("reconstruct", str(tracks), "-o", str(output), "--focal", "300",
+                   "--max-iter", "1", "-q")  # fmt: skip
+    assert outcome.exit_code == 0, outcome.output
+    assert "camera: focal 300 x 300 px, principal point (79.5, 59.5) (from --focal)" in (
+        outcome.stdout
+    )
+    from moju_core.io import read_result
+
+    recorded = read_result(output).metadata["intrinsics"]
+    assert recorded == {"K": [[300.0, 0.0, 79.5], [0.0, 300.0, 59.5], [0.0, 0.0, 1.0]],
+                        "origin": "focal"}  # fmt: skip
+    outcome = _run("reconstruct", str(files["video"]), "-o", str(tmp_path / "v.npz"),
+                   "--focal", "300", "--intrinsics", str(tracks), "-q")  # fmt: skip
+    assert outcome.exit_code == 2 and "use one of them" in outcome.stderr
+    assert not (tmp_path / "v.npz").exists()
+
+
+def test_reconstruct_focal_needs_a_frame_size(tmp_path):
+    from moju_core.datasets import make_sequence
+    from moju_core.io import Measurements, write_measurements
+
+    data = make_sequence("face1", n_points=50)
+    write_measurements(tmp_path / "in.npz", Measurements(W=data.W))
+    outcome = _run("reconstruct", str(tmp_path / "in.npz"), "-o", str(tmp_path / "r.npz"),
+                   "--focal", "500")  # fmt: skip
+    assert outcome.exit_code == 2
+    assert "in.npz has no frame_size; give the full matrix with --intrinsics" in outcome.stderr
+    assert not (tmp_path / "r.npz").exists()
