@@ -15,7 +15,8 @@ cannot be deeper without stretching in some image). The scale is fixed by ``sum_
 
     maximise sum_{f,p seen} d_fp  s.t. the cones above, sum_e l_e = E, d >= 0.
 
-It is solved with cvxpy and Clarabel (an interior-point method).
+It is solved by Clarabel (an interior-point conic solver), called directly: cvxpy's
+compilation took longer than the solve at a few hundred anchors.
 
 Edge-length consistency (``rigidity > 0``). The program above only bounds lengths from above:
 in an image where part of the surface is squeezed (shorter than its bound), nothing stops the
@@ -53,7 +54,7 @@ class ConeSolution:
     lengths : ndarray of shape (E,), float64
         Edge length bounds ``l_e`` (mean 1 over the edges used), NaN for unused edges.
     status : str
-        The solver's status (``"optimal"`` expected).
+        Clarabel's status of the last solve (``"Solved"`` expected).
     seconds : float
         Wall time of building and solving.
     n_cones : int
@@ -82,11 +83,10 @@ def solve_max_depth_cone(
     rigidity: float = 30.0,
     n_rounds: int = 6,
     tol: float = 1e-3,
-    solver: str = "CLARABEL",
 ) -> ConeSolution:
     """Solve the maximum-depth cone program on a (small) set of points.
 
-    Cost: ``C = (#seen edge-image pairs) ~ F P k / 2`` cones of size 3; an interior-point
+    Cost: ``C = (#seen edge-image pairs) ~ F P k / 2`` cones of size 4; an interior-point
     method takes ``O(C)`` per sparse factorisation times a few tens of iterations (about 0.5 s
     for F = 10, P = 90, k = 8; keep ``P`` to a few hundred), times ``1 + n_rounds`` with
     the consistency term.
@@ -105,8 +105,6 @@ def solve_max_depth_cone(
         Most linearise-and-solve rounds of the consistency term.
     tol : float, default 1e-3
         Stop the rounds when the depths change by less than this (relative, max norm).
-    solver : str, default "CLARABEL"
-        A cvxpy conic solver.
 
     Returns
     -------
@@ -115,7 +113,7 @@ def solve_max_depth_cone(
         bounds their depth. If a round fails, the last successful round is returned with the
         failing status.
     """
-    import cvxpy as cp  # heavy import, needed only here
+    import clarabel  # the interior-point solver, imported only when a program is solved
 
     start = time.perf_counter()
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
@@ -149,55 +147,82 @@ def solve_max_depth_cone(
     pick = sp.csr_matrix(
         (np.ones(n_cones), (rows, edge_var[edge_of])), shape=(n_cones, used_edges.size)
     )
-    depths_var = cp.Variable(n_var)
-    lengths_var = cp.Variable(used_edges.size)
-    base = [
-        depths_var >= 0,
-        cp.SOC(pick @ lengths_var, cp.vstack([m @ depths_var for m in diffs]), axis=0),
-        cp.sum(lengths_var) == used_edges.size,
-    ]
+    n_len = used_edges.size
 
-    def solve(problem: cp.Problem) -> str:
-        try:
-            problem.solve(solver=solver)
-            return str(problem.status)
-        except cp.error.SolverError as error:  # reported, not raised: the caller decides
-            return f"solver_error: {error}"
+    # Clarabel's standard form: minimise c.x s.t. A x + s = b, s in a product of cones.
+    # Unknowns x = [depths (n_var), lengths (n_len), slacks (n_cones)]; slacks stay 0 in
+    # the plain program. Each cone row block is (l_e, X_fi - X_fj), interleaved per cone.
+    n_x = n_var + n_len + n_cones
+    zero_d = sp.csr_matrix((n_cones, n_var))
+    zero_s = sp.csr_matrix((n_cones, n_cones))
+    stacked = sp.vstack([
+        sp.hstack([zero_d, pick, zero_s]),
+        *[sp.hstack([m, sp.csr_matrix((n_cones, n_len)), zero_s]) for m in diffs],
+    ]).tocsr()
+    order = (np.arange(4)[None, :] * n_cones + np.arange(n_cones)[:, None]).ravel()
+    soc_block = -stacked[order]
+    scale_row = sp.csr_matrix(
+        (np.ones(n_len), (np.zeros(n_len, dtype=np.int64), n_var + np.arange(n_len))),
+        shape=(1, n_x),
+    )
+    nonneg_block = -sp.eye(n_x, format="csr")  # depths, lengths and slacks >= 0
 
-    status = solve(cp.Problem(cp.Maximize(cp.sum(depths_var)), base))
-    best = (depths_var.value, lengths_var.value)
+    def solve(cost: np.ndarray, lower: sp.csr_matrix | None) -> tuple[str, np.ndarray | None]:
+        blocks = [scale_row, nonneg_block]
+        cones = [clarabel.ZeroConeT(1)]
+        n_nonneg = n_x
+        if lower is not None:
+            blocks.append(-lower)
+            n_nonneg += n_cones
+        cones.append(clarabel.NonnegativeConeT(n_nonneg))
+        blocks.append(soc_block)
+        cones.extend([clarabel.SecondOrderConeT(4)] * n_cones)
+        a_matrix = sp.vstack(blocks).tocsc()
+        b_vector = np.zeros(a_matrix.shape[0])
+        b_vector[0] = n_len  # sum of lengths = E: mean edge length 1
+        settings = clarabel.DefaultSettings()
+        settings.verbose = False
+        solution = clarabel.DefaultSolver(
+            sp.csc_matrix((n_x, n_x)), cost, a_matrix, b_vector, cones, settings
+        ).solve()
+        status = str(solution.status).split(".")[-1]
+        ok = status in ("Solved", "AlmostSolved")
+        return status, (np.asarray(solution.x) if ok else None)
+
+    cost = np.zeros(n_x)
+    cost[:n_var] = -1.0
+    if rigidity > 0 and n_rounds > 0:
+        cost[n_var + n_len:] = 1e3  # first round: slacks are unused, make them expensive
+    status, x = solve(cost, None)
+    best = x
     n_solves, shrink = 1, 0.0
-    if best[0] is not None and rigidity > 0 and n_rounds > 0:
-        mean_depth = float(np.mean(best[0]))
-        slack = cp.Variable(n_cones, nonneg=True)
+    if best is not None and rigidity > 0 and n_rounds > 0:
+        mean_depth = float(np.mean(best[:n_var]))
+        # Objective in dimensionless units: mean depth over the first round's mean depth,
+        # minus the price of the mean slack (lengths have mean 1).
+        cost[:n_var] = -1.0 / (n_var * mean_depth)
+        cost[n_var + n_len:] = rigidity / n_cones
         for _ in range(n_rounds):
-            previous = best[0]
+            previous = best[:n_var]
             vectors = np.stack([m @ previous for m in diffs], axis=1)
-            units = vectors / np.maximum(np.linalg.norm(vectors, axis=1, keepdims=True), 1e-300)
-            along = sum(sp.diags(units[:, c]) @ diffs[c] for c in range(3))
-            # Objective in dimensionless units: mean depth over the first round's mean depth,
-            # minus the price of the mean slack (lengths have mean 1).
-            gain = cp.sum(depths_var) / (n_var * mean_depth)
-            objective = gain - rigidity * cp.sum(slack) / n_cones
-            round_status = solve(cp.Problem(
-                cp.Maximize(objective),
-                base + [along @ depths_var >= pick @ lengths_var - slack],
-            ))
+            vectors /= np.maximum(np.linalg.norm(vectors, axis=1, keepdims=True), 1e-300)
+            along = sum(sp.diags(vectors[:, c]) @ diffs[c] for c in range(3))
+            # u . (X_i - X_j) - l_e + s >= 0, a linear (nonnegative-cone) row per cone.
+            lower = sp.hstack([along, -pick, sp.eye(n_cones)]).tocsr()
+            status, x = solve(cost, lower)
             n_solves += 1
-            if depths_var.value is None:
-                status = round_status
+            if x is None:
                 break
-            status = round_status
-            best = (depths_var.value, lengths_var.value)
-            shrink = float(np.mean(slack.value))
-            change = np.max(np.abs(best[0] - previous)) / max(np.max(np.abs(previous)), 1e-300)
+            best = x
+            shrink = float(np.mean(best[n_var + n_len:]))
+            change = np.max(np.abs(best[:n_var] - previous)) / max(np.max(previous), 1e-300)
             if change < tol:
                 break
     depths = np.full(seen.shape, np.nan)
     lengths = np.full(len(edges), np.nan)
-    if best[0] is not None:
-        depths[constrained] = best[0]
-        lengths[used_edges] = best[1]
+    if best is not None:
+        depths[constrained] = best[:n_var]
+        lengths[used_edges] = best[n_var:n_var + n_len]
     return ConeSolution(
         depths, lengths, status, time.perf_counter() - start, n_cones, n_solves, shrink
     )

@@ -94,6 +94,7 @@ def max_depth_shapes(
     n_anchor: int = 300,
     k: int = 8,
     seed: int = 0,
+    rigidity: float = 30.0,
     refine_iter: int = 60,
 ) -> SurfaceFit:
     """Per-image 3D shapes from perspective tracks by the maximum-depth heuristic.
@@ -112,6 +113,10 @@ def max_depth_shapes(
         Image neighbours per point (for the anchors' graph and the dense graph).
     seed : int, default 0
         Seed of the anchor sampling (the only randomness).
+    rigidity : float, default 30
+        Price of an edge shrinking below its bound in the cone program (edge-length
+        consistency; 0 gives the plain maximum-depth heuristic). See
+        :func:`~moju_core.priors.cone_program.solve_max_depth_cone`.
     refine_iter : int, default 60
         Iterations of the dense refinement (0: interpolation only).
 
@@ -137,7 +142,9 @@ def max_depth_shapes(
     anchor_edges = neighbour_edges(rays[:, anchors], seen[:, anchors], k=k)
     seconds["graph"] = time.perf_counter() - t0
 
-    cone = solve_max_depth_cone(rays[:, anchors], seen[:, anchors], anchor_edges)
+    cone = solve_max_depth_cone(
+        rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity
+    )
     seconds["cone"] = cone.seconds
 
     violation, n_edges = 0.0, len(anchor_edges)
