@@ -92,26 +92,67 @@ def interpolate_depths(
     return depths
 
 
-def edge_bounds(shapes: np.ndarray, both: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Largest length of each edge over the images where both ends are seen.
+def edge_bounds(
+    rays: np.ndarray, depths: np.ndarray, known: np.ndarray, edges: np.ndarray
+) -> np.ndarray:
+    """Largest 3D length of each edge over the images where both ends are known.
 
-    Cost: ``O(F E)``.
+    Cost: ``O(F E)`` time, ``O(E)`` memory (one image at a time).
 
     Parameters
     ----------
-    shapes : ndarray of shape (F, P, 3)
-    both : ndarray of shape (F, E), bool
+    rays : ndarray of shape (F, P, 2)
+    depths : ndarray of shape (F, P)
+    known : ndarray of shape (F, P), bool
     edges : ndarray of shape (E, 2), int
 
     Returns
     -------
     bounds : ndarray of shape (E,)
-        NaN for an edge never seen whole.
+        NaN for an edge never known whole.
     """
-    lengths = np.linalg.norm(shapes[:, edges[:, 0]] - shapes[:, edges[:, 1]], axis=2)
-    lengths = np.where(both, lengths, -np.inf)
-    bounds = lengths.max(axis=0)
+    bounds = np.full(len(edges), -np.inf)
+    i, j = edges[:, 0], edges[:, 1]
+    for f in range(rays.shape[0]):
+        x = depths[f, :, None] * _homogeneous(rays[f])
+        both = known[f, i] & known[f, j]
+        lengths = np.linalg.norm(x[i] - x[j], axis=1)
+        bounds = np.where(both, np.maximum(bounds, lengths), bounds)
     return np.where(np.isfinite(bounds), bounds, np.nan)
+
+
+def _refine_image(
+    q: np.ndarray, d: np.ndarray, free: np.ndarray, i: np.ndarray, j: np.ndarray,
+    bounds: np.ndarray, n_iter: int, push: float, n_project: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Push-and-project iterations on one image; returns its depths and final edge excess."""
+    n_points = d.size
+    scale = float(np.mean(d[d > 0])) if np.any(d > 0) else 1.0
+    qi, qj = q[i], q[j]
+
+    def project(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        diff = d[i, None] * qi - d[j, None] * qj
+        length = np.linalg.norm(diff, axis=1)
+        excess = length - bounds
+        active = excess > 0
+        u = diff / np.maximum(length, 1e-300)[:, None]
+        gi = np.einsum("ek,ek->e", u, qi)
+        gj = -np.einsum("ek,ek->e", u, qj)
+        # Floor on the squared gradient: a fronto-parallel edge barely changes length with
+        # depth; an unbounded step there would be a jump, not a projection.
+        step = np.where(active, excess / np.maximum(gi**2 + gj**2, 1e-2), 0.0)
+        delta = -np.bincount(i, step * gi, n_points) - np.bincount(j, step * gj, n_points)
+        count = np.bincount(i, active, n_points) + np.bincount(j, active, n_points)
+        return delta / np.maximum(count, 1.0), excess
+
+    for it in range(n_iter):
+        d = d + np.where(free, push * scale * (1.0 - it / max(n_iter - 1, 1)), 0.0)
+        for _ in range(n_project):
+            delta, _ = project(d)
+            # Steps clipped to 5 % of the depth per sweep keep the Jacobi iteration stable.
+            d = np.where(free, d + np.clip(delta, -0.05 * d, 0.05 * d), d)
+    _, excess = project(d)
+    return d, excess
 
 
 def refine_depths(
@@ -121,12 +162,13 @@ def refine_depths(
     """Maximum-depth refinement of all points with the inextensibility bounds as a penalty.
 
     Each iteration moves every non-anchor depth away from the camera by ``push`` times the
-    mean depth (decaying linearly to 0 over the iterations, so the last ones only restore the
-    bounds), then runs ``n_project`` Jacobi sweeps in which each edge longer than its bound
-    shortens itself along the two viewing rays (the first-order correction of the length
-    constraint), the corrections of a point averaged over its violated edges.
+    image's mean depth (decaying linearly to 0 over the iterations, so the last ones only
+    restore the bounds), then runs ``n_project`` Jacobi sweeps in which each edge longer than
+    its bound shortens itself along the two viewing rays (the first-order correction of the
+    length constraint), the corrections of a point averaged over its violated edges. With the
+    bounds fixed the images are independent, so they are refined one at a time.
 
-    Cost: ``O(n_iter n_project F E)`` with ``E ~ P k / 2`` edges; memory ``O(F E)``.
+    Cost: ``O(n_iter n_project F E)`` time with ``E ~ P k / 2`` edges; ``O(E)`` memory.
 
     Parameters
     ----------
@@ -146,48 +188,23 @@ def refine_depths(
     violation : float
         Final mean relative excess ``mean(max(0, len/l - 1))`` over the seen edges.
     """
-    q = _homogeneous(np.where(np.isfinite(rays), rays, 0.0))
     known = seen & np.isfinite(depths)
-    d = np.where(known, depths, 0.0)
-    both = known[:, edges[:, 0]] & known[:, edges[:, 1]]
-    bounds = edge_bounds(d[..., None] * q, both, edges)
+    d_all = np.where(known, depths, 0.0)
+    bounds = edge_bounds(rays, d_all, known, edges)
     ok = np.isfinite(bounds)
-    edges, both, bounds = edges[ok], both[:, ok], bounds[ok]
-    i, j = edges[:, 0], edges[:, 1]
-    free = known.copy()
-    free[:, anchors] = False
-    scale = float(np.mean(d[known])) if known.any() else 1.0
-    qi, qj = q[:, i], q[:, j]
-    n_points = d.shape[1]
-
-    def project(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        diff = d[:, i, None] * qi - d[:, j, None] * qj
-        length = np.linalg.norm(diff, axis=2)
-        excess = np.where(both, length - bounds, 0.0)
-        active = excess > 0
-        u = diff / np.maximum(length, 1e-300)[..., None]
-        gi = np.einsum("fek,fek->fe", u, qi)
-        gj = -np.einsum("fek,fek->fe", u, qj)
-        # Floor on the squared gradient: a fronto-parallel edge barely changes length with
-        # depth; an unbounded step there would be a jump, not a projection.
-        denom = np.maximum(gi**2 + gj**2, 1e-2)
-        step = np.where(active, excess / denom, 0.0)
-        delta = np.zeros_like(d)
-        count = np.zeros_like(d)
-        for f in range(d.shape[0]):
-            delta[f] -= np.bincount(i, step[f] * gi[f], n_points)
-            delta[f] -= np.bincount(j, step[f] * gj[f], n_points)
-            count[f] += np.bincount(i, active[f], n_points) + np.bincount(j, active[f], n_points)
-        return delta / np.maximum(count, 1.0), excess
-
-    excess = np.zeros_like(both, dtype=float)
-    for it in range(n_iter):
-        d = d + np.where(free, push * scale * (1.0 - it / max(n_iter - 1, 1)), 0.0)
-        for _ in range(n_project):
-            delta, excess = project(d)
-            # Steps clipped to 5 % of the depth per sweep keep the Jacobi iteration stable.
-            delta = np.clip(delta, -0.05 * d, 0.05 * d)
-            d = np.where(free, d + delta, d)
-    _, excess = project(d)
-    violation = float(np.mean(np.maximum(excess[both], 0) / bounds[np.nonzero(both)[1]]))
-    return np.where(known, d, np.nan), violation
+    edges, bounds = edges[ok], bounds[ok]
+    is_anchor = np.zeros(seen.shape[1], dtype=bool)
+    is_anchor[anchors] = True
+    out = np.full(seen.shape, np.nan)
+    excess_sum, n_seen = 0.0, 0
+    for f in range(seen.shape[0]):
+        both = known[f, edges[:, 0]] & known[f, edges[:, 1]]
+        i, j = edges[both, 0], edges[both, 1]
+        q = _homogeneous(np.where(known[f, :, None], rays[f], 0.0))
+        d, excess = _refine_image(
+            q, d_all[f], known[f] & ~is_anchor, i, j, bounds[both], n_iter, push, n_project
+        )
+        out[f] = np.where(known[f], d, np.nan)
+        excess_sum += float(np.sum(np.maximum(excess, 0.0) / bounds[both]))
+        n_seen += int(both.sum())
+    return out, excess_sum / max(n_seen, 1)
