@@ -1,0 +1,175 @@
+"""Surface prior that creates depth without rotation: the maximum-depth heuristic, made dense.
+
+Chhatkuli, Pizarro, Collins and Bartoli, "Inextensible Non-Rigid Shape-from-Motion by
+Second-Order Cone Programming", TPAMI 2017. With a perspective camera, an inextensible surface
+seen in several images cannot be deeper in any image than its (shared, unknown) geodesic edge
+lengths allow; maximising the depths under those bounds recovers the shapes up to one global
+scale, without needing the camera to rotate. See ``docs/surface_prior.md``.
+
+Pipeline of :func:`max_depth_shapes` (``F`` images, ``P`` points, ``k`` neighbours, ``A``
+anchors):
+
+1. anchors: ``A`` points spread over the image by farthest-point sampling, ``O(A P)``;
+2. cone program on the anchors (:mod:`~moju_core.priors.cone_program`), cvxpy + Clarabel,
+   ``O(F A k)`` cones;
+3. all points: local-plane interpolation of the anchors' inverse depths, ``O(F P (m + log A))``
+   (:mod:`~moju_core.priors.dense_depth`);
+4. dense refinement: the same bounds on the ``k``-neighbour graph of all points as a penalty,
+   first-order, ``O(F P k)`` per iteration; graph ``O(F P k log P)``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from moju_core.priors.cone_program import solve_max_depth_cone
+from moju_core.priors.dense_depth import interpolate_depths, refine_depths
+from moju_core.priors.neighbour_graph import neighbour_edges, spread_anchors, visibility_of
+
+__all__ = ["SurfaceFit", "max_depth_edges", "max_depth_shapes"]
+
+
+@dataclass(frozen=True)
+class SurfaceFit:
+    """Shapes from the maximum-depth heuristic.
+
+    Attributes
+    ----------
+    depths : ndarray of shape (F, P), float64
+        Depth of each point along its viewing ray, > 0 where seen, NaN where not seen. One
+        global scale for the sequence, fixed so that the mean of the seen depths is 1.
+    shapes : ndarray of shape (F, P, 3), float64
+        ``depth * [x', y', 1]`` in each image's camera frame (same unit as ``depths``).
+    anchors : ndarray of shape (A,), int64
+        Points solved by the cone program.
+    status : str
+        The cone solver's status (``"optimal"`` expected).
+    seconds : dict of str to float
+        Wall time per stage: ``graph``, ``cone``, ``interpolate``, ``refine``, ``total``.
+    violation : float
+        Mean relative excess of the dense edges over their bounds after refinement (0 = all
+        bounds hold).
+    n_edges : int
+        Edges of the dense neighbour graph.
+    """
+
+    depths: np.ndarray
+    shapes: np.ndarray
+    anchors: np.ndarray
+    status: str
+    seconds: dict = field(default_factory=dict)
+    violation: float = 0.0
+    n_edges: int = 0
+
+
+def max_depth_edges(
+    rays: np.ndarray, visibility: np.ndarray | None = None, *, k: int = 8
+) -> np.ndarray:
+    """The neighbour graph :func:`max_depth_shapes` uses on all points.
+
+    Stable ``k``-nearest image neighbours (see
+    :func:`~moju_core.priors.neighbour_graph.neighbour_edges`); ``O(F P k log P)``.
+
+    Parameters
+    ----------
+    rays : ndarray of shape (F, P, 2)
+        Normalised image coordinates, NaN where not seen.
+    visibility : ndarray of shape (F, P), bool, optional
+    k : int, default 8
+
+    Returns
+    -------
+    edges : ndarray of shape (E, 2), int64
+    """
+    return neighbour_edges(rays, visibility, k=k)
+
+
+def max_depth_shapes(
+    rays: np.ndarray,
+    visibility: np.ndarray | None = None,
+    *,
+    n_anchor: int = 300,
+    k: int = 8,
+    seed: int = 0,
+    rigidity: float = 30.0,
+    refine_iter: int = 60,
+) -> SurfaceFit:
+    """Per-image 3D shapes from perspective tracks by the maximum-depth heuristic.
+
+    Parameters
+    ----------
+    rays : ndarray of shape (F, P, 2)
+        Normalised image coordinates ``(x', y') = ((u - cx)/fx, (v - cy)/fy)``, NaN where not
+        seen.
+    visibility : ndarray of shape (F, P), bool, optional
+        True where seen (combined with the finiteness of ``rays``).
+    n_anchor : int, default 300
+        Points solved exactly by the cone program; all points when ``P <= n_anchor`` (then no
+        interpolation or refinement is needed).
+    k : int, default 8
+        Image neighbours per point (for the anchors' graph and the dense graph).
+    seed : int, default 0
+        Seed of the anchor sampling (the only randomness).
+    rigidity : float, default 30
+        Price of an edge shrinking below its bound in the cone program (edge-length
+        consistency; 0 gives the plain maximum-depth heuristic). See
+        :func:`~moju_core.priors.cone_program.solve_max_depth_cone`.
+    refine_iter : int, default 60
+        Iterations of the dense refinement (0: interpolation only).
+
+    Returns
+    -------
+    SurfaceFit
+
+    Raises
+    ------
+    ValueError
+        If ``rays`` is not (F, P, 2) or fewer than 2 images see points.
+    """
+    t_start = time.perf_counter()
+    rays = np.asarray(rays, dtype=np.float64)
+    seen = visibility_of(rays, visibility)
+    if seen.shape[0] < 2 or seen.sum() == 0:
+        raise ValueError("the maximum-depth heuristic needs at least 2 images with seen points")
+    n_points = seen.shape[1]
+    seconds: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    anchors = spread_anchors(rays, seen, n_anchor=n_anchor, seed=seed)
+    anchor_edges = neighbour_edges(rays[:, anchors], seen[:, anchors], k=k)
+    seconds["graph"] = time.perf_counter() - t0
+
+    cone = solve_max_depth_cone(
+        rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity
+    )
+    seconds["cone"] = cone.seconds
+
+    violation, n_edges = 0.0, len(anchor_edges)
+    if anchors.size == n_points:
+        depths = cone.depths
+        seconds["interpolate"] = seconds["refine"] = 0.0
+    else:
+        t0 = time.perf_counter()
+        depths = interpolate_depths(rays, seen, anchors, cone.depths)
+        seconds["interpolate"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        edges = neighbour_edges(rays, seen, k=k)
+        seconds["graph"] += time.perf_counter() - t0
+        n_edges = len(edges)
+        t0 = time.perf_counter()
+        if refine_iter > 0:
+            depths, violation = refine_depths(
+                rays, seen, edges, depths, anchors, n_iter=refine_iter
+            )
+        seconds["refine"] = time.perf_counter() - t0
+
+    depths = np.where(seen & (depths > 0), depths, np.nan)
+    if np.any(np.isfinite(depths)):
+        depths = depths / np.nanmean(depths)  # the global scale: mean seen depth 1
+    q = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
+    shapes = depths[..., None] * q
+    seconds["total"] = time.perf_counter() - t_start
+    return SurfaceFit(depths, shapes, anchors, cone.status, seconds, violation, n_edges)
