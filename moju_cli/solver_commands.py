@@ -256,8 +256,8 @@ def _solve(
     """Run :func:`moju_core.reconstruct` with a progress bar on ``threads`` BLAS threads.
 
     ``visibility`` (F, P) bool marks the observed entries of W (None: all observed).
-    ``intrinsics`` is the camera resolved for W's pixels (None: orthographic tracks); the
-    solver does not take a camera matrix yet, so it is only recorded with the result.
+    ``intrinsics`` is the camera resolved for W's pixels (None: orthographic tracks); with it
+    the solve is perspective (:mod:`moju_core.perspective`).
     Input errors become CLI errors; solver warnings are printed as ``warning: ...`` lines.
     """
     # Imported here: the solver pulls in scikit-learn, which ``moju --help`` should not wait for.
@@ -270,7 +270,13 @@ def _solve(
             # Complete data go through the call as before; a mask only when something is missing.
             masked = {} if visibility is None else {"visibility": visibility}
             result = reconstruct(
-                W, params, rotations=rotations, callback=bar, threads=threads, **masked
+                W,
+                params,
+                rotations=rotations,
+                intrinsics=intrinsics,
+                callback=bar,
+                threads=threads,
+                **masked,
             )
         bar.finish(result)
         return result

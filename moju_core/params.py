@@ -101,6 +101,16 @@ class SolverParams(BaseModel):
             "(the paper's loop). Ignored by 'pta'."
         ),
     )
+    surface_prior: Literal["auto", "isometric", "none"] = Field(
+        "auto",
+        description=(
+            "The surface prior that gives depth without camera rotation, for tracks with a "
+            "known camera (intrinsics): 'isometric' starts from the maximum-depth shapes of an "
+            "inextensible surface seen in perspective and keeps the loop close to them; "
+            "'none' solves orthographically as without a camera. 'auto': 'isometric' when "
+            "intrinsics are given, else 'none'."
+        ),
+    )
     free_mean_shape: bool | None = Field(
         None,
         description=(

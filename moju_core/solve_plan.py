@@ -18,7 +18,9 @@ from moju_core.defaults import EXACT_DATA_NOISE, MIN_DEPTH_PRIOR
 #: approximate one.
 Completion = Literal["none", "exact", "approximate"]
 #: The loop's data term (:mod:`moju_core.loop.data_terms`).
-DataTermName = Literal["soft", "banded-prior", "exact", "masked-exact", "trajectory-basis"]
+DataTermName = Literal[
+    "soft", "banded-prior", "exact", "masked-exact", "anchored", "trajectory-basis"
+]
 
 
 @dataclass(frozen=True)
@@ -47,6 +49,11 @@ class SolvePlan:
         Whether noisy tracks were projected onto their signal subspace and fitted exactly.
     data_term : str
         The loop's data term (:data:`DataTermName`).
+    camera_model : {"orthographic", "perspective"}
+        Perspective when the camera's intrinsics were given and the surface prior used them.
+    surface_prior : {"none", "isometric"}
+        The surface prior the loop started from and was anchored to
+        (:mod:`moju_core.perspective`).
     """
 
     method: str
@@ -60,6 +67,8 @@ class SolvePlan:
     smoothness: float
     signal_fit: bool
     data_term: DataTermName
+    camera_model: Literal["orthographic", "perspective"] = "orthographic"
+    surface_prior: Literal["none", "isometric"] = "none"
 
     def __str__(self) -> str:
         return "\n".join(f"{field.name}: {getattr(self, field.name)}" for field in fields(self))

@@ -10,8 +10,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import cameras, defaults, feasibility, pta, solve_plan
+from moju_core import cameras, defaults, feasibility, perspective, pta, solve_plan
 from moju_core.cameras import projection
+from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.completion.completed import (
     CompletedTracks,
     camera_tracks,
@@ -90,6 +91,7 @@ def reconstruct(
     *,
     rotations: np.ndarray | None = None,
     visibility: np.ndarray | None = None,
+    intrinsics: Intrinsics | None = None,
     callback: ProgressCallback | None = None,
     threads: int | None = None,
 ) -> Result:
@@ -113,6 +115,13 @@ def reconstruct(
         True where point j is observed in frame f; it must agree with the NaN of W. The data
         term then runs over the observed entries only, and the shapes of every point in every
         frame are returned (see docs/solver.md, "Missing data").
+    intrinsics : Intrinsics, optional
+        The camera of W's pixels (:class:`moju_core.cameras.intrinsics.Intrinsics`). With it
+        (and ``params.surface_prior`` ``"auto"`` or ``"isometric"``) the solve is
+        perspective (:mod:`moju_core.perspective`): the shapes are then in each image's
+        camera frame (x right, y down, z along the optical axis), one scale for the sequence
+        (the mean depth is 1), not centred, and the rotations are ``[I_2 0]``. Without it the
+        tracks are orthographic, any unit.
     callback : callable, optional
         ``callback(progress: Progress) -> bool | None``, called at every stage change and
         every iteration; returning True stops the solver, which raises
@@ -142,9 +151,9 @@ def reconstruct(
         When the callback asks to stop.
     """
     if threads is None:
-        return _reconstruct(W, params, rotations, visibility, callback)
+        return _reconstruct(W, params, rotations, visibility, intrinsics, callback)
     with threadpool_limits(limits=threads):
-        return _reconstruct(W, params, rotations, visibility, callback)
+        return _reconstruct(W, params, rotations, visibility, intrinsics, callback)
 
 
 def _reconstruct(
@@ -152,6 +161,7 @@ def _reconstruct(
     params: SolverParams | None,
     rotations: np.ndarray | None,
     visibility: np.ndarray | None,
+    intrinsics: Intrinsics | None,
     callback: ProgressCallback | None,
 ) -> Result:
     """Validate, complete, estimate the cameras, plan, run the loop, package the result."""
@@ -161,6 +171,8 @@ def _reconstruct(
     start = time.perf_counter()
     report("validating")
     W, visibility, rotations = _validate(W, visibility, rotations, params)
+    if perspective.uses_surface_prior(params, intrinsics):
+        return _perspective_reconstruct(W, visibility, intrinsics, params, report, start)
     observed = None if visibility.all() else visibility
     completed = None if observed is None else complete_tracks(W, observed)
     measured_tracks = W
@@ -546,6 +558,68 @@ def _package(
             completion_unexplained=None if completed is None else completed.unexplained,
             exact_fit=out.exact_fit,
             plan=solve.plan,
+        ),
+    )
+
+
+def _perspective_reconstruct(
+    W: np.ndarray,
+    visibility: np.ndarray,
+    intrinsics: Intrinsics,
+    params: SolverParams,
+    report: _Reporter,
+    start: float,
+) -> Result:
+    """The perspective path (:mod:`moju_core.perspective`): the isometric prior's shapes,
+    then the loop anchored to them, in each image's camera frame."""
+    report("initialising")
+    tic = time.perf_counter()
+    prior, fit = perspective.prior_shapes(W, visibility, intrinsics, params.seed)
+    timings = {"surface_prior": time.perf_counter() - tic}
+    params = params.model_copy(update={"surface_prior": "isometric"})
+    report.expected = defaults.expected_iterations(params)
+
+    def hook(iteration: int, gap: float, rho: float) -> bool:
+        report("iterating", iteration, gap, rho)
+        return False
+
+    tic = time.perf_counter()
+    shapes, out, params = perspective.refine_on_prior(prior, visibility, params, hook)
+    timings["iterate"] = time.perf_counter() - tic
+    report("finishing", out.n_iter)
+    timings["total"] = time.perf_counter() - start
+    n_frames, n_points = visibility.shape
+    plan = SolvePlan(
+        method=params.method,
+        n_frames=n_frames,
+        n_points=n_points,
+        observed_fraction=float(visibility.mean()),
+        noise=0.0,
+        completion="none" if visibility.all() else "approximate",
+        camera_source="known",
+        refine_rotations=False,
+        smoothness=float(params.smoothness),
+        signal_fit=False,
+        data_term="anchored",
+        camera_model="perspective",
+        surface_prior="isometric",
+    )
+    return Result(
+        shapes=np.ascontiguousarray(shapes),
+        rotations=out.rotations,
+        labels=out.labels,
+        history=out.history,
+        timings=timings,
+        params=params,
+        n_iter=out.n_iter,
+        stop_reason=out.stop_reason,
+        scale=1.0,
+        visibility=visibility,
+        diagnostics=Diagnostics(
+            n_groups_used=out.n_groups,
+            rotation_source="known",
+            observed_fraction=float(visibility.mean()),
+            plan=plan,
         ),
     )
 

@@ -172,6 +172,7 @@ def run(
     # S = S# = pinv(R) W, the zero-depth start: from the tracks as given, i.e. with the
     # hidden entries of a masked input at their completion (moju_core.completion.missing).
     state = initial_state(tracks, cameras.rotations, params.rho, term.observed, term.measured)
+    term.start(state)
     if settings.local:
         initial_groups(state, settings, features)
     group_lrr = GroupCoefficients.initial(state.n_groups, n_frames, params.low_dim, params.seed)

@@ -14,6 +14,8 @@ once per solve by :func:`choose_term`:
                         only: noise-free tracks seen by fixed cameras.
 :class:`MaskedExactTerm` the exact fit of the measured entries, the other fitted entries
                         softly; abandoned when it throws hidden entries off the object.
+:class:`AnchoredTerm`   the soft data term plus a pull towards given shapes (a surface
+                        prior's), which sets the depths the tracks do not.
 ======================  ==============================================================
 
 A term is built over the entries it fits (``observed``) and, for the masked exact fit, the
@@ -79,6 +81,10 @@ class DataTerm:
             return cls(None, n_frames * n_points, None, **extra)
         counts = observed.sum(axis=1)[:, None].astype(float)
         return cls(observed, int(observed.sum()), counts, **extra)
+
+    def start(self, state: LoopState) -> None:
+        """What the term sets in a fresh state (input point order); nothing here: the loop
+        starts from the zero-depth back-projection of the tracks."""
 
     def prepare(self, state: LoopState, iteration: int) -> None:
         """What the term updates before the S-step of ``iteration`` (1-based); nothing here."""
@@ -253,6 +259,50 @@ class MaskedExactTerm(ExactTerm):
     def gone_astray(self, state: LoopState, iteration: int) -> bool:
         """Every :data:`ABANDON_CHECK_EVERY` iterations: a point beyond ``limit``."""
         return iteration % ABANDON_CHECK_EVERY == 0 and beyond(state.shapes, self.limit)
+
+
+@dataclass(eq=False)
+class AnchoredTerm(SoftTerm):
+    """``||R S - W||^2 + weight ||S - A||^2``: the soft data term and a pull towards the
+    shapes A of a surface prior (``state.anchor``, (F, 3, P)).
+
+    With cameras that hardly rotate the tracks say nothing about depth, and the nuclear norm
+    alone pulls the shapes flat; the anchor keeps the depths of the prior where the low-rank
+    model and the local groups have nothing better. Completing the square, the S-update is
+    the soft one towards ``(rho T + weight A) / (rho + weight)`` with penalty
+    ``rho + weight``; O(F P).
+
+    Attributes
+    ----------
+    anchor : ndarray of shape (F, 3, P)
+        The prior's shapes in the loop's frame and units, input point order; the loop starts
+        from them instead of the zero-depth start.
+    weight : float
+        Weight of the pull, relative to the data term of the scale-normalised tracks.
+    """
+
+    name = "anchored"
+    anchor: np.ndarray | None = field(default=None, repr=False)
+    weight: float = 1.0
+
+    def start(self, state: LoopState) -> None:
+        state.anchor = np.ascontiguousarray(self.anchor, dtype=np.float64)
+        state.shapes[...] = state.anchor
+        state.sharp[...] = state.anchor.reshape(state.sharp.shape)
+
+    def shape_step(
+        self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray
+    ) -> None:
+        total = state.rho + self.weight
+        pulled = (state.rho * target + self.weight * state.anchor) / total
+        camera.data_step(
+            state.back_projected,
+            state.normals,
+            pulled,
+            total,
+            out=state.shapes,
+            observed=state.observed,
+        )
 
 
 def beyond(shapes: np.ndarray, limit: float) -> bool:

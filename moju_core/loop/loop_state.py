@@ -118,6 +118,9 @@ class LoopState:
     measured : ndarray of shape (F, P), bool, or None
         With an exact fit of tracks with hidden entries, the observed entries (fitted exactly;
         the other entries of ``observed`` softly); None otherwise.
+    anchor : ndarray of shape (F, 3, P) or None
+        The shapes a surface prior pulls towards (:class:`moju_core.loop.data_terms.AnchoredTerm`);
+        None otherwise.
     unobserved : ndarray of int or None
         The entries ``observed`` leaves out, as indices into the raveled (F, 2, P) tracks,
         once computed (:meth:`unobserved_entries`); reset when the points are permuted.
@@ -145,6 +148,7 @@ class LoopState:
     svt_warm: lrr.WarmStart = field(default_factory=lrr.WarmStart)
     depth_pull: np.ndarray | None = None
     measured: np.ndarray | None = None
+    anchor: np.ndarray | None = None
     unobserved: np.ndarray | None = None
 
     def unobserved_entries(self) -> np.ndarray:
@@ -198,6 +202,8 @@ class LoopState:
             self.unobserved = None
         if self.measured is not None:
             self.measured = permute_points(self.measured, perm)
+        if self.anchor is not None:
+            self.anchor = permute_points(self.anchor, perm)
         if self.features is not None:
             self.features = self.features[perm]
         self.shapes = permute_points(self.shapes, perm)

@@ -1,0 +1,147 @@
+"""Tracks filmed by a known camera: depth from the isometric surface prior, the loop on top.
+
+Real footage is mostly a static or hand-held camera and an object that turns 10-30 degrees:
+too little rotation for depth from motion, and an orthographic model explains the object's
+motion towards and away from the camera as deformation. With the camera's intrinsics K the
+solve instead
+
+1. maps the pixel tracks to viewing rays (:meth:`moju_core.cameras.intrinsics.Intrinsics.
+   normalise`);
+2. finds the depth of every point along its ray by the maximum-depth heuristic of an
+   inextensible surface (:func:`moju_core.priors.max_depth.max_depth_shapes`): per-image 3D
+   shapes in each image's camera frame, one scale for the sequence (mean depth 1), no camera
+   rotation needed;
+3. runs the MoJu loop on those shapes in the camera frame (rotations ``[I_2 0]``, the tracks
+   the shapes' x and y), with the data term anchored to the prior's shapes
+   (:class:`moju_core.loop.data_terms.AnchoredTerm`): the low-rank model and the local groups
+   regularise them, the anchor keeps the depths the tracks cannot set.
+
+Hidden entries have no ray depth: the prior's shape of a hidden point is taken from the
+nearest frame that sees it, moved with its frame's centroid. Costs: those of the prior
+(a cone program on a few hundred anchors, then O(F P k) per refinement iteration) and of the
+loop.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from moju_core import defaults
+from moju_core.cameras.intrinsics import Intrinsics
+from moju_core.errors import MeasurementError
+from moju_core.loop import admm, lrr
+from moju_core.loop.data_terms import AnchoredTerm
+from moju_core.params import SolverParams
+from moju_core.priors.max_depth import SurfaceFit, max_depth_shapes
+from moju_core.spectrum import noise_variance, significant_rank, spectrum
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+#: Weight of the pull towards the prior's shapes, relative to the data term of the
+#: scale-normalised tracks: as much as the tracks themselves, so that neither the prior nor the
+#: low-rank model alone sets the depths.
+ANCHOR_WEIGHT = 1.0
+
+
+def uses_surface_prior(params: SolverParams, intrinsics: Intrinsics | None) -> bool:
+    """Whether a solve takes the perspective path: ``surface_prior`` ``"isometric"``, or
+    ``"auto"`` with a known camera, estimated rotations (known rotations are an orthographic
+    camera's) and an iterative method (``pta`` is a closed-form orthographic fit). Refused where it cannot run: without a camera (the prior needs viewing
+    rays), or with method ``pta``."""
+    if params.surface_prior == "none":
+        return False
+    if params.surface_prior == "isometric":
+        if intrinsics is None:
+            raise MeasurementError(
+                "surface_prior='isometric' needs the camera's intrinsics (pixel tracks and K): "
+                "pass intrinsics=, or --intrinsics FILE / --focal PIXELS on the command line"
+            )
+        if params.method == "pta":
+            raise MeasurementError(
+                "surface_prior='isometric' runs the loop of an iterative method; method "
+                "'pta' is a closed-form orthographic fit: choose another method, or "
+                "surface_prior='none'"
+            )
+    return intrinsics is not None and params.method != "pta" and params.rotations != "known"
+
+
+def prior_shapes(
+    W: np.ndarray, visibility: np.ndarray, intrinsics: Intrinsics, seed: int
+) -> tuple[np.ndarray, SurfaceFit]:
+    """Per-image camera-frame shapes (F, P, 3) of the isometric prior, every entry filled.
+
+    ``W`` (2F, P) in pixels, ``visibility`` (F, P) bool.
+    """
+    n_frames, n_points = visibility.shape
+    rays = intrinsics.normalise(W).reshape(n_frames, 2, n_points).transpose(0, 2, 1)
+    rays = np.where(visibility[:, :, None], rays, np.nan)
+    fit = max_depth_shapes(rays, visibility, seed=seed)
+    return _fill_hidden(fit.shapes, visibility), fit
+
+
+def _fill_hidden(shapes: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    """Hidden points (F, P, 3) from the nearest frame that sees them, moved with the
+    centroid of the points both frames see; O(F P)."""
+    if visibility.all():
+        return shapes
+    n_frames = visibility.shape[0]
+    filled = shapes.copy()
+    frames = np.arange(n_frames)
+    for point in np.flatnonzero(~visibility.all(axis=0)):
+        seen = np.flatnonzero(visibility[:, point])
+        nearest = seen[np.abs(frames[:, None] - seen[None, :]).argmin(axis=1)]
+        hidden = np.flatnonzero(~visibility[:, point])
+        source = nearest[hidden]
+        shift = _centroids(shapes, visibility, hidden) - _centroids(shapes, visibility, source)
+        filled[hidden, point] = shapes[source, point] + shift
+    return filled
+
+
+def _centroids(shapes: np.ndarray, visibility: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """Centroid (n, 3) of the seen points of each of ``frames``."""
+    seen = visibility[frames][:, :, None]
+    return np.where(seen, shapes[frames], 0.0).sum(axis=1) / seen.sum(axis=1)
+
+
+def refine_on_prior(
+    prior: np.ndarray,
+    visibility: np.ndarray,
+    params: SolverParams,
+    hook: Callable[[int, float, float], bool] | None = None,
+) -> tuple[np.ndarray, admm.LoopOutput, SolverParams]:
+    """The MoJu loop in the camera frame, anchored to the prior's shapes (F, P, 3).
+
+    Returns the refined shapes (F, P, 3) in the prior's frame and units, the loop's output
+    and the resolved parameters.
+    """
+    n_frames, n_points, _ = prior.shape
+    centroid = prior.mean(axis=1, keepdims=True)
+    centred = (prior - centroid).transpose(0, 2, 1)  # (F, 3, P)
+    scale = float(np.sqrt(np.mean(centred[:, :2] ** 2)))
+    centred = centred / scale
+    tracks = np.ascontiguousarray(centred[:, :2])
+    rotations = np.broadcast_to(np.eye(2, 3), (n_frames, 2, 3)).copy()
+    flat_tracks = tracks.reshape(2 * n_frames, n_points)
+    singular = spectrum(flat_tracks).singular
+    top = lrr.top_singular_value(centred.reshape(n_frames, 3 * n_points))
+    if params.smoothness is None:
+        params = params.model_copy(update={"smoothness": 0.0})
+    params = defaults.resolve(
+        params,
+        n_frames,
+        n_points,
+        top,
+        rotations=rotations,
+        noise=noise_variance(singular, flat_tracks.shape),
+        signal_rank=significant_rank(singular, flat_tracks.shape),
+    )
+    observed = None if visibility.all() else visibility
+    term = AnchoredTerm.over(
+        n_frames, n_points, observed, anchor=centred, weight=ANCHOR_WEIGHT
+    )
+    out = admm.run(tracks, admm.LoopCameras(rotations), params, term, hook=hook)
+    shapes = out.shapes.transpose(0, 2, 1) * scale + centroid
+    return shapes, out, params
