@@ -22,6 +22,7 @@ Seeds 0-2 were used to design the estimator; 10-13 are held out. Writes
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 import warnings
@@ -83,12 +84,14 @@ def estimate(W: np.ndarray, name: str, seed: int) -> np.ndarray:
         return estimate_cameras(W, name, seed=seed).rotations
 
 
-def rotation_unit(name: str, seed: int, noise: float, n_points: int) -> list[dict[str, Any]]:
+def rotation_unit(
+    name: str, seed: int, noise: float, n_points: int, estimators: tuple[str, ...] = ESTIMATORS
+) -> list[dict[str, Any]]:
     data = load(name, seed, noise, n_points)
     W, _ = normalise(data.W)
     rows = []
     with threadpool_limits(limits=1):
-        for estimator in ESTIMATORS:
+        for estimator in estimators:
             start = time.perf_counter()
             R = estimate(W, estimator, seed)
             seconds = time.perf_counter() - start
@@ -186,6 +189,11 @@ def rotation_tables(
                     )
                 body.append([name, f"{noise:g}", *cells])
         lines += table(header, body)
+    seconds = [
+        [estimator, _mean([r["seconds"] for r in rows if r["estimator"] == estimator])]
+        for estimator in ESTIMATORS
+    ]
+    lines += ["", "Mean seconds per estimate (one BLAS thread):", "", *table(["", "s"], seconds)]
     return lines
 
 
@@ -233,6 +241,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--points", type=int, default=1_500)
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--output-dir", type=Path, default=OUTPUT)
+    parser.add_argument(
+        "--estimators", nargs="+", default=list(ESTIMATORS), help="rotations: which to run"
+    )
+    parser.add_argument(
+        "--merge",
+        nargs="*",
+        type=Path,
+        default=[],
+        help="rotations: JSON files of earlier runs whose rows of the other estimators join the "
+        "table (the old estimators do not change when the new one does)",
+    )
     args = parser.parse_args(argv)
     meta = provenance(sys.argv if argv is None else ["cameras.py", *argv])
     units = [
@@ -242,7 +261,12 @@ def main(argv: list[str] | None = None) -> int:
         for noise in args.noise
     ]
     if args.what == "rotations":
+        units = [(*unit, tuple(args.estimators)) for unit in units]
         rows = [row for unit in parallel_map(rotation_unit, units, args.jobs) for row in unit]
+        for path in args.merge:
+            earlier = json.loads(path.read_text())["rows"]
+            rows += [r for r in earlier if r["estimator"] not in args.estimators]
+        meta["merged"] = [str(path) for path in args.merge]
         write_json(args.output_dir / "cameras_rotations.json", meta, rows=rows)
         write_markdown(
             args.output_dir / "cameras_rotations.md",
@@ -253,7 +277,13 @@ def main(argv: list[str] | None = None) -> int:
                 f"frame-to-frame error (degrees, mean over seeds) / largest frame-to-frame error "
                 f"(degrees, over all seeds). {args.points:,} points (the body: 41 markers, 350 "
                 f"frames), 60 frames (face3: 99). Design seeds {list(DESIGN_SEEDS)}; held out: "
-                f"the others of {args.seeds}.",
+                f"the others of {args.seeds}."
+                + (
+                    f" Rows of the estimators other than {', '.join(args.estimators)} come from "
+                    f"{', '.join(meta['merged'])} (same sequences, same code for them)."
+                    if args.merge
+                    else ""
+                ),
                 *rotation_tables(rows, args.sequences, args.noise),
             ],
         )
