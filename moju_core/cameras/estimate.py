@@ -30,7 +30,7 @@ import numpy as np
 
 from moju_core.cameras.bases import check_measurements, choose_n_bases
 from moju_core.cameras.intersection import intersection_estimate
-from moju_core.cameras.plane import plane_rotations
+from moju_core.cameras.plane import DEFAULT_GROUPS, plane_rotations
 from moju_core.cameras.rigid import rigid_rotations
 from moju_core.cameras.windowed import (
     RIGIDITY_WINDOW,
@@ -99,8 +99,8 @@ def estimate_cameras(
     decomposition : Spectrum, optional
         ``spectrum(W)``, if already computed (it is computed once otherwise).
     n_groups : int, optional
-        Groups of tracks of the plane estimator (``"plane"`` only); 1 when omitted, which
-        measured best (``docs/cameras.md``).
+        Groups of tracks of the plane estimator (``"plane"`` only);
+        :data:`moju_core.cameras.plane.DEFAULT_GROUPS` when omitted (``docs/cameras.md``).
 
     Returns
     -------
@@ -113,7 +113,10 @@ def estimate_cameras(
             decomposition = spectrum(check_measurements(W))
         variance = noise_variance(decomposition.singular, W.shape)
         rotations = plane_rotations(
-            W, n_groups=1 if n_groups is None else n_groups, noise_variance=variance, seed=seed
+            W,
+            n_groups=DEFAULT_GROUPS if n_groups is None else n_groups,
+            noise_variance=variance,
+            seed=seed,
         )
         return CameraEstimate(rotations, "plane")  # type: ignore[arg-type]
     if method not in ("auto", "intersection", "windowed"):
