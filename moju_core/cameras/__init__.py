@@ -11,6 +11,8 @@ solver's ``rotations`` parameter and, for ``"auto"``, chooses between them. The 
   (:mod:`~moju_core.cameras.triples`);
 * :mod:`~moju_core.cameras.windowed` - rigid factorisations of short windows of frames,
   chained, and the short-time rigidity that ``"auto"`` compares;
+* :mod:`~moju_core.cameras.plane` - rotations of a sheet from the calibration of its dominant
+  plane, fitted robustly to groups of tracks (``"plane"``, selectable by name only);
 * :mod:`~moju_core.cameras.refinement` - projection onto orthonormal rows and the refinement
   of rotations against given shapes;
 * :mod:`~moju_core.cameras.bases` - how many shape bases W supports, and the checks of W;

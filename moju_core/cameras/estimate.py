@@ -7,6 +7,9 @@
   (:mod:`moju_core.cameras.windowed`); right when the camera turns fast compared with the
   deformation, whatever the shapes. Approximate: the ADMM loop refines them with the shapes.
 * ``"rigid"``: Tomasi and Kanade (:func:`moju_core.cameras.rigid.rigid_rotations`).
+* ``"plane"``: the calibration of the object's dominant plane, fitted robustly to groups of
+  tracks (:mod:`moju_core.cameras.plane`); for sheets (flags, bumpy surfaces), whose depth is
+  mostly deformation. Not refined by the loop, and not chosen by ``"auto"``.
 * ``"auto"`` (default): the intersection rotations, unless the windowed ones explain the
   tracks as rigid over every three frames with less than a third of the deformation the
   intersection rotations leave (after removing what the noise of the tracks accounts for).
@@ -27,6 +30,7 @@ import numpy as np
 
 from moju_core.cameras.bases import check_measurements, choose_n_bases
 from moju_core.cameras.intersection import intersection_estimate
+from moju_core.cameras.plane import DEFAULT_GROUPS, plane_rotations
 from moju_core.cameras.rigid import rigid_rotations
 from moju_core.cameras.windowed import (
     RIGIDITY_WINDOW,
@@ -50,7 +54,7 @@ class CameraEstimate:
     """Rotations and how they were obtained.
 
     rotations : ndarray of shape (F, 2, 3)
-    source : {"known", "intersection", "windowed", "rigid"}
+    source : {"known", "intersection", "windowed", "rigid", "plane"}
         Where the rotations come from (:data:`moju_core.result.RotationSource`); ``"rigid"``
         also when the intersection method fell back to the rigid rotations.
     n_bases : int or None
@@ -79,6 +83,7 @@ def estimate_cameras(
     n_bases: int | None = None,
     seed: int = 0,
     decomposition: Spectrum | None = None,
+    n_groups: int | None = None,
 ) -> CameraEstimate:
     """Camera rotations of centred tracks by the named method.
 
@@ -86,13 +91,16 @@ def estimate_cameras(
     ----------
     W : ndarray of shape (2F, P)
         Centred (and scale-normalised) measurements.
-    method : {"auto", "intersection", "windowed", "rigid"}
+    method : {"auto", "intersection", "windowed", "rigid", "plane"}
     n_bases : int, optional
         Shape bases of the intersection method; chosen from the spectrum when omitted.
     seed : int, default 0
         Seed of the intersection method's search.
     decomposition : Spectrum, optional
         ``spectrum(W)``, if already computed (it is computed once otherwise).
+    n_groups : int, optional
+        Groups of tracks of the plane estimator (``"plane"`` only);
+        :data:`moju_core.cameras.plane.DEFAULT_GROUPS` when omitted (``docs/cameras.md``).
 
     Returns
     -------
@@ -100,6 +108,17 @@ def estimate_cameras(
     """
     if method == "rigid":
         return CameraEstimate(rigid_rotations(W), "rigid")
+    if method == "plane":
+        if decomposition is None:
+            decomposition = spectrum(check_measurements(W))
+        variance = noise_variance(decomposition.singular, W.shape)
+        rotations = plane_rotations(
+            W,
+            n_groups=DEFAULT_GROUPS if n_groups is None else n_groups,
+            noise_variance=variance,
+            seed=seed,
+        )
+        return CameraEstimate(rotations, "plane")  # type: ignore[arg-type]
     if method not in ("auto", "intersection", "windowed"):
         raise ValueError(f"unknown rotation method {method!r}")
     if method == "windowed":
