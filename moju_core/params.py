@@ -12,7 +12,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 Method = Literal["moju", "sdg", "bmm", "pta"]
-RotationMethod = Literal["auto", "intersection", "windowed", "rigid", "known"]
+RotationMethod = Literal["auto", "intersection", "windowed", "rigid", "plane", "known"]
 Grouping = Literal["adaptive", "fixed"]
 
 
@@ -45,8 +45,9 @@ class SolverParams(BaseModel):
             "refined with the shapes; for a camera that turns fast relative to the "
             "deformation), 'auto' (intersection, unless the windowed rotations explain the "
             "tracks as nearly rigid over every three frames far better), 'rigid' "
-            "(Tomasi-Kanade with metric upgrade) or 'known' (supplied with the input; an "
-            "estimating method with supplied rotations is refused as a contradiction)."
+            "(Tomasi-Kanade with metric upgrade), 'plane' (a sheet's rotations from the "
+            "calibration of its dominant plane, robust over groups of tracks) or 'known' "
+            "(supplied with the input; an estimating method with supplied rotations is refused as a contradiction)."
         ),
     )
     n_bases: int | None = Field(

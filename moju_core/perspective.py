@@ -49,8 +49,9 @@ ANCHOR_WEIGHT = 1.0
 def uses_surface_prior(params: SolverParams, intrinsics: Intrinsics | None) -> bool:
     """Whether a solve takes the perspective path: ``surface_prior`` ``"isometric"``, or
     ``"auto"`` with a known camera, estimated rotations (known rotations are an orthographic
-    camera's) and an iterative method (``pta`` is a closed-form orthographic fit). Refused where it cannot run: without a camera (the prior needs viewing
-    rays), or with method ``pta``."""
+    camera's) and an iterative method (``pta`` is a closed-form orthographic fit). Refused
+    where it cannot run: without a camera (the prior needs viewing rays), or with method
+    ``pta``."""
     if params.surface_prior == "none":
         return False
     if params.surface_prior == "isometric":

@@ -20,7 +20,7 @@ from moju_core.solve_plan import SolvePlan
 
 #: How the rotations of a solve were obtained: supplied (``"known"``) or estimated by one of
 #: the methods of :func:`moju_core.cameras.estimate_cameras` (``"auto"`` resolves to one).
-RotationSource = Literal["known", "intersection", "windowed", "rigid"]
+RotationSource = Literal["known", "intersection", "windowed", "rigid", "plane"]
 
 
 class Stage(StrEnum):
@@ -121,7 +121,7 @@ class Diagnostics:
     n_groups_used : int
         Local groups at the end of the loop (1 for ``"bmm"`` and ``"pta"``); below
         ``params.n_groups`` when a regrouping merged groups.
-    rotation_source : {"known", "intersection", "windowed", "rigid"}
+    rotation_source : {"known", "intersection", "windowed", "rigid", "plane"}
         Where the rotations came from: supplied, or the estimator that produced them (what
         ``rotations="auto"`` chose); ``"rigid"`` also when the intersection method fell back
         to the rigid rotations.
