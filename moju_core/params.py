@@ -47,7 +47,8 @@ class SolverParams(BaseModel):
             "tracks as nearly rigid over every three frames far better), 'rigid' "
             "(Tomasi-Kanade with metric upgrade), 'plane' (a sheet's rotations from the "
             "calibration of its dominant plane, robust over groups of tracks) or 'known' "
-            "(supplied with the input; an estimating method with supplied rotations is refused as a contradiction)."
+            "(supplied with the input; an estimating method with supplied rotations is "
+            "refused as a contradiction)."
         ),
     )
     n_bases: int | None = Field(
