@@ -154,6 +154,7 @@ REAL_VARIANTS = {
     "MDH + consistency (k=8)": {},
     "MDH + consistency (k=12)": {"k": 12},
     "plain MDH (k=35, as the reference)": {"rigidity": 0.0, "k": 35},
+    "MDH + consistency, soft upper bound (outlier price 10)": {"outlier_price": 10.0},
     "40 anchors + interpolation": {"n_anchor": 40, "refine_iter": 0},
     "40 anchors + interpolation + refinement": {"n_anchor": 40},
 }

@@ -95,6 +95,7 @@ def max_depth_shapes(
     k: int = 8,
     seed: int = 0,
     rigidity: float = 30.0,
+    outlier_price: float = np.inf,
     refine_iter: int = 60,
 ) -> SurfaceFit:
     """Per-image 3D shapes from perspective tracks by the maximum-depth heuristic.
@@ -117,6 +118,9 @@ def max_depth_shapes(
         Price of an edge shrinking below its bound in the cone program (edge-length
         consistency; 0 gives the plain maximum-depth heuristic). See
         :func:`~moju_core.priors.cone_program.solve_max_depth_cone`.
+    outlier_price : float, default inf
+        Price of an edge exceeding its bound (a soft upper bound against wrong tracks);
+        ``inf`` keeps the bounds hard, which measured better (docs/surface_prior.md).
     refine_iter : int, default 60
         Iterations of the dense refinement (0: interpolation only).
 
@@ -143,7 +147,8 @@ def max_depth_shapes(
     seconds["graph"] = time.perf_counter() - t0
 
     cone = solve_max_depth_cone(
-        rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity
+        rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity,
+        outlier_price=outlier_price,
     )
     seconds["cone"] = cone.seconds
 
