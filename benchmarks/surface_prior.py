@@ -1,19 +1,23 @@
 """Benchmark of the maximum-depth surface prior (moju_core.priors.max_depth).
 
-Two parts, each writing JSON and a Markdown table under benchmarks/results/surface_prior/:
+Three parts, each writing JSON under benchmarks/results/surface_prior/ (tables in
+docs/surface_prior.md):
 
 * ``real``: the four ToTem sequences (pixel tracks through K), e3D with a per-image scale and
   the out-of-plane extent ratio, next to the published MDH and MaxRig depths scored the same
   way, plus an ablation (plain MDH vs edge-length consistency, k, anchors + dense stage).
 * ``synthetic``: a perspective sheet bent isometrically into a changing cylinder section,
   seen by a camera that turns only a little, with pixel noise and optional outlier tracks;
-  design seeds and held-out seeds reported separately, and the timing at several sizes.
+  design seeds and held-out seeds reported separately;
+* ``timing``: the time of each stage at several sizes.
 
 Usage::
 
     python benchmarks/surface_prior.py real --data /work/shared/data/totem
-    python benchmarks/surface_prior.py synthetic --seeds 0 1 --held-out 2 3 4
-    python benchmarks/surface_prior.py timing --points 5000 20000
+    python benchmarks/surface_prior.py synthetic --seeds 0 1 --held-out 2 3 4 --points 1500 \
+        --frames 20 --turn 15 --n-anchor 120 [--outliers 0.05 --tag _outliers]
+    python benchmarks/surface_prior.py timing --points 5000 20000 --frames 30 --n-anchor 120
+    python benchmarks/surface_prior.py timing --points 100000 --frames 5 --n-anchor 120 --tag _100k
 """
 
 from __future__ import annotations
@@ -187,6 +191,7 @@ def main() -> None:
     tim.add_argument("--points", type=int, nargs="+", default=[5000, 20000])
     tim.add_argument("--frames", type=int, default=30)
     tim.add_argument("--n-anchor", type=int, default=200)
+    tim.add_argument("--tag", default="")
     args = parser.parse_args()
 
     if args.part == "real":
@@ -214,7 +219,7 @@ def main() -> None:
                    "seconds": {k: round(v, 2) for k, v in fit.seconds.items()}}
             print(row, flush=True)
             rows.append(row)
-        _write("timing", {"rows": rows})
+        _write(f"timing{args.tag}", {"rows": rows})
 
 
 if __name__ == "__main__":
