@@ -91,7 +91,7 @@ def max_depth_shapes(
     rays: np.ndarray,
     visibility: np.ndarray | None = None,
     *,
-    n_anchor: int = 300,
+    n_anchor: int = 200,
     k: int = 8,
     seed: int = 0,
     rigidity: float = 30.0,
@@ -107,7 +107,7 @@ def max_depth_shapes(
         seen.
     visibility : ndarray of shape (F, P), bool, optional
         True where seen (combined with the finiteness of ``rays``).
-    n_anchor : int, default 300
+    n_anchor : int, default 200
         Points solved exactly by the cone program; all points when ``P <= n_anchor`` (then no
         interpolation or refinement is needed).
     k : int, default 8
