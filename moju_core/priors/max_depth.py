@@ -54,6 +54,11 @@ class SurfaceFit:
         bounds hold).
     n_edges : int
         Edges of the dense neighbour graph.
+    n_solves : int
+        Cone programs solved (1 + edge-length consistency rounds).
+    shrink : float
+        Mean slack of the consistency term over the mean edge bound: how far the anchors'
+        edges fall short of their bounds on average (0 = every edge at its bound everywhere).
     """
 
     depths: np.ndarray
@@ -63,6 +68,8 @@ class SurfaceFit:
     seconds: dict = field(default_factory=dict)
     violation: float = 0.0
     n_edges: int = 0
+    n_solves: int = 1
+    shrink: float = 0.0
 
 
 def max_depth_edges(
@@ -177,4 +184,7 @@ def max_depth_shapes(
     q = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
     shapes = depths[..., None] * q
     seconds["total"] = time.perf_counter() - t_start
-    return SurfaceFit(depths, shapes, anchors, cone.status, seconds, violation, n_edges)
+    return SurfaceFit(
+        depths, shapes, anchors, cone.status, seconds, violation, n_edges,
+        cone.n_solves, cone.shrink,
+    )

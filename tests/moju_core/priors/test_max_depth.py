@@ -58,6 +58,7 @@ def test_bent_sheet_recovered(sheet, fit):
     # Measured: e3D 0.095, out-of-plane ratio 0.76 (a flat estimate scores about 0.25 and 0).
     rays, truth = sheet
     assert fit.status == "Solved"
+    assert 2 <= fit.n_solves <= 7 and fit.shrink >= 0
     assert scaled_e3d(fit.shapes, truth) < 0.12
     assert out_of_plane_ratio(fit.shapes, truth) > 0.6
     flat = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], 2)
