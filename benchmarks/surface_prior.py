@@ -1,19 +1,25 @@
 """Benchmark of the maximum-depth surface prior (moju_core.priors.max_depth).
 
-Two parts, each writing JSON and a Markdown table under benchmarks/results/surface_prior/:
+Three parts, each writing JSON under benchmarks/results/surface_prior/ (tables in
+docs/surface_prior.md):
 
 * ``real``: the four ToTem sequences (pixel tracks through K), e3D with a per-image scale and
   the out-of-plane extent ratio, next to the published MDH and MaxRig depths scored the same
   way, plus an ablation (plain MDH vs edge-length consistency, k, anchors + dense stage).
 * ``synthetic``: a perspective sheet bent isometrically into a changing cylinder section,
   seen by a camera that turns only a little, with pixel noise and optional outlier tracks;
-  design seeds and held-out seeds reported separately, and the timing at several sizes.
+  design seeds and held-out seeds reported separately;
+* ``timing``: the time of each stage at several sizes.
 
 Usage::
 
     python benchmarks/surface_prior.py real --data /work/shared/data/totem
-    python benchmarks/surface_prior.py synthetic --seeds 0 1 --held-out 2 3 4
-    python benchmarks/surface_prior.py timing --points 5000 20000
+    python benchmarks/surface_prior.py real --noise-px 1 --tag _noise1px \
+        --variants "plain MDH (k=8, rigidity 0)" "MDH + consistency (k=8)"
+    python benchmarks/surface_prior.py synthetic --seeds 0 1 --held-out 2 3 4 --points 1500 \
+        --frames 20 --turn 15 --n-anchor 120 [--outliers 0.05 --tag _outliers]
+    python benchmarks/surface_prior.py timing --points 5000 20000 --frames 30 --n-anchor 120
+    python benchmarks/surface_prior.py timing --points 100000 --frames 5 --n-anchor 120 --tag _100k
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import argparse
 import json
 import platform
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +37,7 @@ from moju_core.datasets.totem import (
     TOTEM_NAMES,
     load_totem,
     out_of_plane_ratio,
+    pixels_to_rays,
     scaled_e3d,
 )
 from moju_core.priors.max_depth import max_depth_shapes
@@ -115,11 +123,19 @@ def _score(shapes: np.ndarray, truth: np.ndarray) -> dict:
     }
 
 
-def run_real(data: Path, variants: dict[str, dict]) -> dict:
-    """Score every variant on the four sequences, and the references."""
+def run_real(data: Path, variants: dict[str, dict], noise_px: float = 0.0) -> dict:
+    """Score every variant on the four sequences, and the references.
+
+    ``noise_px`` adds Gaussian noise of that standard deviation (pixels, seed 0) to the tracks
+    before they go through ``inv(K)``, on top of the tracks' own errors.
+    """
     rows: dict = {}
+    rng = np.random.default_rng(0)
     for name in TOTEM_NAMES:
         seq = load_totem(data, name)
+        if noise_px > 0:
+            noisy = seq.pixels + rng.normal(scale=noise_px, size=seq.pixels.shape)
+            seq = replace(seq, pixels=noisy, rays=pixels_to_rays(noisy, seq.K))
         rows[name] = {
             "MDH reference": _score(seq.reference_shapes("MDH"), seq.truth),
             "MaxRig reference": _score(seq.reference_shapes("MaxRig"), seq.truth),
@@ -154,6 +170,7 @@ REAL_VARIANTS = {
     "MDH + consistency (k=8)": {},
     "MDH + consistency (k=12)": {"k": 12},
     "plain MDH (k=35, as the reference)": {"rigidity": 0.0, "k": 35},
+    "MDH + consistency, soft upper bound (outlier price 10)": {"outlier_price": 10.0},
     "40 anchors + interpolation": {"n_anchor": 40, "refine_iter": 0},
     "40 anchors + interpolation + refinement": {"n_anchor": 40},
 }
@@ -172,6 +189,8 @@ def main() -> None:
     real = sub.add_parser("real")
     real.add_argument("--data", type=Path, default=Path("/work/shared/data/totem"))
     real.add_argument("--variants", nargs="*", default=list(REAL_VARIANTS))
+    real.add_argument("--noise-px", type=float, default=0.0)
+    real.add_argument("--tag", default="")
     syn = sub.add_parser("synthetic")
     syn.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     syn.add_argument("--held-out", type=int, nargs="+", default=[2, 3, 4])
@@ -186,11 +205,13 @@ def main() -> None:
     tim.add_argument("--points", type=int, nargs="+", default=[5000, 20000])
     tim.add_argument("--frames", type=int, default=30)
     tim.add_argument("--n-anchor", type=int, default=200)
+    tim.add_argument("--tag", default="")
     args = parser.parse_args()
 
     if args.part == "real":
-        rows = run_real(args.data, {v: REAL_VARIANTS[v] for v in args.variants})
-        _write("real", {"rows": rows, "published": REFERENCE})
+        rows = run_real(args.data, {v: REAL_VARIANTS[v] for v in args.variants}, args.noise_px)
+        _write(f"real{args.tag}", {"rows": rows, "published": REFERENCE,
+                                   "noise_px": args.noise_px})
     elif args.part == "synthetic":
         kwargs = {"n_anchor": args.n_anchor, "refine_iter": args.refine_iter}
         common = dict(n_points=args.points, n_frames=args.frames, turn_deg=args.turn,
@@ -213,7 +234,7 @@ def main() -> None:
                    "seconds": {k: round(v, 2) for k, v in fit.seconds.items()}}
             print(row, flush=True)
             rows.append(row)
-        _write("timing", {"rows": rows})
+        _write(f"timing{args.tag}", {"rows": rows})
 
 
 if __name__ == "__main__":

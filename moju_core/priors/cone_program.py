@@ -83,6 +83,7 @@ def solve_max_depth_cone(
     rigidity: float = 30.0,
     n_rounds: int = 6,
     tol: float = 1e-3,
+    outlier_price: float = np.inf,
 ) -> ConeSolution:
     """Solve the maximum-depth cone program on a (small) set of points.
 
@@ -105,6 +106,10 @@ def solve_max_depth_cone(
         Most linearise-and-solve rounds of the consistency term.
     tol : float, default 1e-3
         Stop the rounds when the depths change by less than this (relative, max norm).
+    outlier_price : float, default inf
+        Price of an edge exceeding its bound in the consistency rounds (same units as
+        ``rigidity``; must exceed 1, the gain of stretching everything, to stay bounded);
+        ``inf`` keeps the bounds hard.
 
     Returns
     -------
@@ -152,12 +157,17 @@ def solve_max_depth_cone(
     # Clarabel's standard form: minimise c.x s.t. A x + s = b, s in a product of cones.
     # Unknowns x = [depths (n_var), lengths (n_len), slacks (n_cones)]; slacks stay 0 in
     # the plain program. Each cone row block is (l_e, X_fi - X_fj), interleaved per cone.
-    n_x = n_var + n_len + n_cones
+    # With a finite outlier price, a second slack t_fe >= 0 loosens each upper bound,
+    # ||X_fi - X_fj|| <= l_e + t_fe, so that a wrong track in a few images cannot inflate l_e.
+    n_t = n_cones if np.isfinite(outlier_price) else 0
+    n_x = n_var + n_len + n_cones + n_t
     zero_d = sp.csr_matrix((n_cones, n_var))
     zero_s = sp.csr_matrix((n_cones, n_cones))
+    loosen = sp.eye(n_cones, format="csr") if n_t else sp.csr_matrix((n_cones, 0))
     stacked = sp.vstack([
-        sp.hstack([zero_d, pick, zero_s]),
-        *[sp.hstack([m, sp.csr_matrix((n_cones, n_len)), zero_s]) for m in diffs],
+        sp.hstack([zero_d, pick, zero_s, loosen]),
+        *[sp.hstack([m, sp.csr_matrix((n_cones, n_len)), zero_s,
+                     sp.csr_matrix((n_cones, n_t))]) for m in diffs],
     ]).tocsr()
     order = (np.arange(4)[None, :] * n_cones + np.arange(n_cones)[:, None]).ravel()
     soc_block = -stacked[order]
@@ -191,8 +201,7 @@ def solve_max_depth_cone(
 
     cost = np.zeros(n_x)
     cost[:n_var] = -1.0
-    if rigidity > 0 and n_rounds > 0:
-        cost[n_var + n_len:] = 1e3  # first round: slacks are unused, make them expensive
+    cost[n_var + n_len:] = 1e3  # first round: slacks are unused, make them expensive
     status, x = solve(cost, None)
     best = x
     n_solves, shrink = 1, 0.0
@@ -201,20 +210,24 @@ def solve_max_depth_cone(
         # Objective in dimensionless units: mean depth over the first round's mean depth,
         # minus the price of the mean slack (lengths have mean 1).
         cost[:n_var] = -1.0 / (n_var * mean_depth)
-        cost[n_var + n_len:] = rigidity / n_cones
+        cost[n_var + n_len:n_var + n_len + n_cones] = rigidity / n_cones
+        if n_t:
+            cost[n_var + n_len + n_cones:] = outlier_price / n_cones
         for _ in range(n_rounds):
             previous = best[:n_var]
             vectors = np.stack([m @ previous for m in diffs], axis=1)
             vectors /= np.maximum(np.linalg.norm(vectors, axis=1, keepdims=True), 1e-300)
             along = sum(sp.diags(vectors[:, c]) @ diffs[c] for c in range(3))
             # u . (X_i - X_j) - l_e + s >= 0, a linear (nonnegative-cone) row per cone.
-            lower = sp.hstack([along, -pick, sp.eye(n_cones)]).tocsr()
+            lower = sp.hstack(
+                [along, -pick, sp.eye(n_cones), sp.csr_matrix((n_cones, n_t))]
+            ).tocsr()
             status, x = solve(cost, lower)
             n_solves += 1
             if x is None:
                 break
             best = x
-            shrink = float(np.mean(best[n_var + n_len:]))
+            shrink = float(np.mean(best[n_var + n_len:n_var + n_len + n_cones]))
             change = np.max(np.abs(best[:n_var] - previous)) / max(np.max(previous), 1e-300)
             if change < tol:
                 break

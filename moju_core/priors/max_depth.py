@@ -54,6 +54,11 @@ class SurfaceFit:
         bounds hold).
     n_edges : int
         Edges of the dense neighbour graph.
+    n_solves : int
+        Cone programs solved (1 + edge-length consistency rounds).
+    shrink : float
+        Mean slack of the consistency term over the mean edge bound: how far the anchors'
+        edges fall short of their bounds on average (0 = every edge at its bound everywhere).
     """
 
     depths: np.ndarray
@@ -63,6 +68,8 @@ class SurfaceFit:
     seconds: dict = field(default_factory=dict)
     violation: float = 0.0
     n_edges: int = 0
+    n_solves: int = 1
+    shrink: float = 0.0
 
 
 def max_depth_edges(
@@ -91,10 +98,11 @@ def max_depth_shapes(
     rays: np.ndarray,
     visibility: np.ndarray | None = None,
     *,
-    n_anchor: int = 300,
+    n_anchor: int = 200,
     k: int = 8,
     seed: int = 0,
     rigidity: float = 30.0,
+    outlier_price: float = np.inf,
     refine_iter: int = 60,
 ) -> SurfaceFit:
     """Per-image 3D shapes from perspective tracks by the maximum-depth heuristic.
@@ -106,7 +114,7 @@ def max_depth_shapes(
         seen.
     visibility : ndarray of shape (F, P), bool, optional
         True where seen (combined with the finiteness of ``rays``).
-    n_anchor : int, default 300
+    n_anchor : int, default 200
         Points solved exactly by the cone program; all points when ``P <= n_anchor`` (then no
         interpolation or refinement is needed).
     k : int, default 8
@@ -117,6 +125,9 @@ def max_depth_shapes(
         Price of an edge shrinking below its bound in the cone program (edge-length
         consistency; 0 gives the plain maximum-depth heuristic). See
         :func:`~moju_core.priors.cone_program.solve_max_depth_cone`.
+    outlier_price : float, default inf
+        Price of an edge exceeding its bound (a soft upper bound against wrong tracks);
+        ``inf`` keeps the bounds hard, which measured better (docs/surface_prior.md).
     refine_iter : int, default 60
         Iterations of the dense refinement (0: interpolation only).
 
@@ -143,7 +154,8 @@ def max_depth_shapes(
     seconds["graph"] = time.perf_counter() - t0
 
     cone = solve_max_depth_cone(
-        rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity
+        rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity,
+        outlier_price=outlier_price,
     )
     seconds["cone"] = cone.seconds
 
@@ -172,4 +184,7 @@ def max_depth_shapes(
     q = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
     shapes = depths[..., None] * q
     seconds["total"] = time.perf_counter() - t_start
-    return SurfaceFit(depths, shapes, anchors, cone.status, seconds, violation, n_edges)
+    return SurfaceFit(
+        depths, shapes, anchors, cone.status, seconds, violation, n_edges,
+        cone.n_solves, cone.shrink,
+    )

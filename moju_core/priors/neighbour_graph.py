@@ -98,7 +98,7 @@ def neighbour_edges(
 
 
 def spread_anchors(
-    rays: np.ndarray, visibility: np.ndarray | None = None, *, n_anchor: int = 300, seed: int = 0
+    rays: np.ndarray, visibility: np.ndarray | None = None, *, n_anchor: int = 200, seed: int = 0
 ) -> np.ndarray:
     """A subset of points spread over the image, by farthest-point sampling.
 
@@ -115,7 +115,7 @@ def spread_anchors(
         Normalised image coordinates, NaN where not seen.
     visibility : ndarray of shape (F, P), bool, optional
         True where seen.
-    n_anchor : int, default 300
+    n_anchor : int, default 200
         Number of anchors; all eligible points when there are fewer.
     seed : int, default 0
         Seed of the first draw.

@@ -29,6 +29,7 @@ def test_bent_sheet_recovered(sheet, fit):
     # Measured: e3D 0.095, out-of-plane ratio 0.76 (a flat estimate scores about 0.25 and 0).
     rays, truth = sheet
     assert fit.status == "Solved"
+    assert 2 <= fit.n_solves <= 7 and fit.shrink >= 0
     assert scaled_e3d(fit.shapes, truth) < 0.12
     assert out_of_plane_ratio(fit.shapes, truth) > 0.6
     flat = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], 2)
@@ -113,3 +114,14 @@ def test_edges_pure_and_reproducible(sheet):
 def test_rejects_single_image():
     with pytest.raises(ValueError):
         max_depth_shapes(np.zeros((1, 10, 2)))
+
+
+def test_dense_stage_with_missing_entries():
+    rays, truth = cylinder_sheet(n_points=400, n_frames=5, seed=2)
+    visibility = np.random.default_rng(4).random(rays.shape[:2]) > 0.2
+    result = max_depth_shapes(np.where(visibility[..., None], rays, np.nan), visibility,
+                              n_anchor=60, seed=2)
+    assert np.all(np.isnan(result.depths[~visibility]))
+    assert np.all(result.depths[visibility] > 0)
+    always = visibility.all(axis=0)
+    assert scaled_e3d(result.shapes[:, always], truth[:, always]) < 0.15
