@@ -118,9 +118,59 @@ def solve_max_depth_cone(
         bounds their depth. If a round fails, the last successful round is returned with the
         failing status.
     """
-    import clarabel  # the interior-point solver, imported only when a program is solved
-
     start = time.perf_counter()
+    pairs = _edge_image_pairs(rays, seen, edges)
+    program = _assemble_program(pairs, soft_bounds=bool(np.isfinite(outlier_price)))
+    status, best = _solve_program(program, _first_round_cost(program))
+    n_solves, shrink = 1, 0.0
+    if best is not None and rigidity > 0 and n_rounds > 0:
+        cost = _consistency_cost(program, best, rigidity, outlier_price)
+        status, best, n_rounds_run, shrink = _consistency_rounds(
+            program, cost, best, status, n_rounds=n_rounds, tol=tol
+        )
+        n_solves += n_rounds_run
+    depths, lengths = _unpack(pairs, best)
+    return ConeSolution(
+        depths, lengths, status, time.perf_counter() - start, pairs.n_cones, n_solves, shrink
+    )
+
+
+@dataclass(frozen=True)
+class _EdgeImagePairs:
+    """The (image, edge) pairs where both ends of an edge are seen, and their cone matrices.
+
+    Attributes
+    ----------
+    constrained : ndarray of shape (F, P), bool
+        Entries in at least one pair: the ``V`` depth unknowns, in row-major order.
+    used_edges : ndarray of shape (L,), int
+        Edges seen whole in at least one image: the ``L`` length unknowns, in order.
+    n_edges : int
+        Number ``E`` of edges given (used or not).
+    diffs : list of 3 sparse matrices of shape (C, V)
+        ``diffs[c] @ d`` is coordinate ``c`` of ``X_fi - X_fj`` for each of the ``C`` pairs.
+    pick : sparse matrix of shape (C, L)
+        ``pick @ l`` is the length bound ``l_e`` of each pair's edge.
+    n_var, n_len, n_cones : int
+        ``V``, ``L`` and ``C``.
+    """
+
+    constrained: np.ndarray
+    used_edges: np.ndarray
+    n_edges: int
+    diffs: list[sp.csr_matrix]
+    pick: sp.csr_matrix
+    n_var: int
+    n_len: int
+    n_cones: int
+
+
+def _edge_image_pairs(rays: np.ndarray, seen: np.ndarray, edges: np.ndarray) -> _EdgeImagePairs:
+    """Find the (image, edge) pairs seen whole and build their cone matrices.
+
+    ``rays`` (F, P, 2), ``seen`` (F, P) bool and ``edges`` (E, 2) int as in
+    :func:`solve_max_depth_cone`.
+    """
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     both = seen[:, edges[:, 0]] & seen[:, edges[:, 1]]  # (F, E)
     frame_of, edge_of = np.nonzero(both)
@@ -140,7 +190,6 @@ def solve_max_depth_cone(
     i_pts, j_pts = edges[edge_of, 0], edges[edge_of, 1]
     rows = np.arange(n_cones)
     cols = np.concatenate([var_index[frame_of, i_pts], var_index[frame_of, j_pts]])
-    # diffs[c] @ d is coordinate c of X_fi - X_fj for every (image, edge) pair.
     diffs = [
         sp.csr_matrix(
             (np.concatenate([q[frame_of, i_pts, c], -q[frame_of, j_pts, c]]),
@@ -152,90 +201,186 @@ def solve_max_depth_cone(
     pick = sp.csr_matrix(
         (np.ones(n_cones), (rows, edge_var[edge_of])), shape=(n_cones, used_edges.size)
     )
-    n_len = used_edges.size
+    return _EdgeImagePairs(
+        constrained, used_edges, len(edges), diffs, pick, n_var, used_edges.size, n_cones
+    )
 
-    # Clarabel's standard form: minimise c.x s.t. A x + s = b, s in a product of cones.
-    # Unknowns x = [depths (n_var), lengths (n_len), slacks (n_cones)]; slacks stay 0 in
-    # the plain program. Each cone row block is (l_e, X_fi - X_fj), interleaved per cone.
-    # With a finite outlier price, a second slack t_fe >= 0 loosens each upper bound,
-    # ||X_fi - X_fj|| <= l_e + t_fe, so that a wrong track in a few images cannot inflate l_e.
-    n_t = n_cones if np.isfinite(outlier_price) else 0
+
+@dataclass(frozen=True)
+class _ConeProgram:
+    """The rows of the program that every solve shares, in Clarabel's standard form.
+
+    Clarabel solves: minimise ``c . x`` s.t. ``A x + s = b``, ``s`` in a product of cones.
+    The unknowns are ``x = [depths (V), lengths (L), slacks s_fe (C), loosenings t_fe (T)]``;
+    the slacks stay 0 in the plain program. With a finite outlier price (``T = C``; else
+    ``T = 0``) each upper bound is loosened, ``||X_fi - X_fj|| <= l_e + t_fe``, so that a wrong
+    track in a few images cannot inflate ``l_e``.
+
+    Attributes
+    ----------
+    pairs : _EdgeImagePairs
+        The pairs the cones come from.
+    n_t, n_x : int
+        ``T`` and the number of unknowns ``V + L + C + T``.
+    scale_row : sparse matrix of shape (1, n_x)
+        Sums the lengths (set equal to ``L``: mean edge length 1).
+    nonneg_block : sparse matrix of shape (n_x, n_x)
+        ``-I``: every unknown is nonnegative.
+    soc_block : sparse matrix of shape (4 C, n_x)
+        Minus the rows ``(l_e + t_fe, X_fi - X_fj)`` of each pair, one size-4 cone per pair.
+    """
+
+    pairs: _EdgeImagePairs
+    n_t: int
+    n_x: int
+    scale_row: sp.csr_matrix
+    nonneg_block: sp.csr_matrix
+    soc_block: sp.csr_matrix
+
+    @property
+    def depths(self) -> slice:
+        """Where the depths are in ``x``."""
+        return slice(0, self.pairs.n_var)
+
+    @property
+    def lengths(self) -> slice:
+        """Where the lengths are in ``x``."""
+        return slice(self.pairs.n_var, self.pairs.n_var + self.pairs.n_len)
+
+    @property
+    def slacks(self) -> slice:
+        """Where the shrink slacks ``s_fe`` are in ``x``."""
+        start = self.pairs.n_var + self.pairs.n_len
+        return slice(start, start + self.pairs.n_cones)
+
+
+def _assemble_program(pairs: _EdgeImagePairs, *, soft_bounds: bool) -> _ConeProgram:
+    """Build the shared rows: the length scale, nonnegativity and the cones of the pairs."""
+    n_var, n_len, n_cones = pairs.n_var, pairs.n_len, pairs.n_cones
+    n_t = n_cones if soft_bounds else 0
     n_x = n_var + n_len + n_cones + n_t
     zero_d = sp.csr_matrix((n_cones, n_var))
     zero_s = sp.csr_matrix((n_cones, n_cones))
     loosen = sp.eye(n_cones, format="csr") if n_t else sp.csr_matrix((n_cones, 0))
     stacked = sp.vstack([
-        sp.hstack([zero_d, pick, zero_s, loosen]),
+        sp.hstack([zero_d, pairs.pick, zero_s, loosen]),
         *[sp.hstack([m, sp.csr_matrix((n_cones, n_len)), zero_s,
-                     sp.csr_matrix((n_cones, n_t))]) for m in diffs],
+                     sp.csr_matrix((n_cones, n_t))]) for m in pairs.diffs],
     ]).tocsr()
+    # Clarabel wants each cone's 4 rows together: interleave the 4 blocks of C rows.
     order = (np.arange(4)[None, :] * n_cones + np.arange(n_cones)[:, None]).ravel()
-    soc_block = -stacked[order]
     scale_row = sp.csr_matrix(
         (np.ones(n_len), (np.zeros(n_len, dtype=np.int64), n_var + np.arange(n_len))),
         shape=(1, n_x),
     )
-    nonneg_block = -sp.eye(n_x, format="csr")  # depths, lengths and slacks >= 0
-
-    def solve(cost: np.ndarray, lower: sp.csr_matrix | None) -> tuple[str, np.ndarray | None]:
-        blocks = [scale_row, nonneg_block]
-        cones = [clarabel.ZeroConeT(1)]
-        n_nonneg = n_x
-        if lower is not None:
-            blocks.append(-lower)
-            n_nonneg += n_cones
-        cones.append(clarabel.NonnegativeConeT(n_nonneg))
-        blocks.append(soc_block)
-        cones.extend([clarabel.SecondOrderConeT(4)] * n_cones)
-        a_matrix = sp.vstack(blocks).tocsc()
-        b_vector = np.zeros(a_matrix.shape[0])
-        b_vector[0] = n_len  # sum of lengths = E: mean edge length 1
-        settings = clarabel.DefaultSettings()
-        settings.verbose = False
-        solution = clarabel.DefaultSolver(
-            sp.csc_matrix((n_x, n_x)), cost, a_matrix, b_vector, cones, settings
-        ).solve()
-        status = str(solution.status).split(".")[-1]
-        ok = status in ("Solved", "AlmostSolved")
-        return status, (np.asarray(solution.x) if ok else None)
-
-    cost = np.zeros(n_x)
-    cost[:n_var] = -1.0
-    cost[n_var + n_len:] = 1e3  # first round: slacks are unused, make them expensive
-    status, x = solve(cost, None)
-    best = x
-    n_solves, shrink = 1, 0.0
-    if best is not None and rigidity > 0 and n_rounds > 0:
-        mean_depth = float(np.mean(best[:n_var]))
-        # Objective in dimensionless units: mean depth over the first round's mean depth,
-        # minus the price of the mean slack (lengths have mean 1).
-        cost[:n_var] = -1.0 / (n_var * mean_depth)
-        cost[n_var + n_len:n_var + n_len + n_cones] = rigidity / n_cones
-        if n_t:
-            cost[n_var + n_len + n_cones:] = outlier_price / n_cones
-        for _ in range(n_rounds):
-            previous = best[:n_var]
-            vectors = np.stack([m @ previous for m in diffs], axis=1)
-            vectors /= np.maximum(np.linalg.norm(vectors, axis=1, keepdims=True), 1e-300)
-            along = sum(sp.diags(vectors[:, c]) @ diffs[c] for c in range(3))
-            # u . (X_i - X_j) - l_e + s >= 0, a linear (nonnegative-cone) row per cone.
-            lower = sp.hstack(
-                [along, -pick, sp.eye(n_cones), sp.csr_matrix((n_cones, n_t))]
-            ).tocsr()
-            status, x = solve(cost, lower)
-            n_solves += 1
-            if x is None:
-                break
-            best = x
-            shrink = float(np.mean(best[n_var + n_len:n_var + n_len + n_cones]))
-            change = np.max(np.abs(best[:n_var] - previous)) / max(np.max(previous), 1e-300)
-            if change < tol:
-                break
-    depths = np.full(seen.shape, np.nan)
-    lengths = np.full(len(edges), np.nan)
-    if best is not None:
-        depths[constrained] = best[:n_var]
-        lengths[used_edges] = best[n_var:n_var + n_len]
-    return ConeSolution(
-        depths, lengths, status, time.perf_counter() - start, n_cones, n_solves, shrink
+    return _ConeProgram(
+        pairs, n_t, n_x, scale_row, -sp.eye(n_x, format="csr"), -stacked[order]
     )
+
+
+def _solve_program(
+    program: _ConeProgram, cost: np.ndarray, lower: sp.csr_matrix | None = None
+) -> tuple[str, np.ndarray | None]:
+    """Solve the program once with Clarabel.
+
+    ``cost`` (n_x,) is the linear objective; ``lower`` (C, n_x), if given, adds the rows
+    ``lower @ x >= 0`` (a consistency round's linearised lower bounds). Returns Clarabel's
+    status and the solution ``x`` (n_x,), or None unless solved (or almost).
+    """
+    import clarabel  # the interior-point solver, imported only when a program is solved
+
+    blocks = [program.scale_row, program.nonneg_block]
+    cones = [clarabel.ZeroConeT(1)]
+    n_nonneg = program.n_x
+    if lower is not None:
+        blocks.append(-lower)
+        n_nonneg += program.pairs.n_cones
+    cones.append(clarabel.NonnegativeConeT(n_nonneg))
+    blocks.append(program.soc_block)
+    cones.extend([clarabel.SecondOrderConeT(4)] * program.pairs.n_cones)
+    a_matrix = sp.vstack(blocks).tocsc()
+    b_vector = np.zeros(a_matrix.shape[0])
+    b_vector[0] = program.pairs.n_len  # sum of lengths = E: mean edge length 1
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    solution = clarabel.DefaultSolver(
+        sp.csc_matrix((program.n_x, program.n_x)), cost, a_matrix, b_vector, cones, settings
+    ).solve()
+    status = str(solution.status).split(".")[-1]
+    ok = status in ("Solved", "AlmostSolved")
+    return status, (np.asarray(solution.x) if ok else None)
+
+
+def _first_round_cost(program: _ConeProgram) -> np.ndarray:
+    """Objective (n_x,) of the plain program: maximise the sum of depths."""
+    cost = np.zeros(program.n_x)
+    cost[program.depths] = -1.0
+    cost[program.slacks.start:] = 1e3  # slacks are unused, make them expensive
+    return cost
+
+
+def _consistency_cost(
+    program: _ConeProgram, first: np.ndarray, rigidity: float, outlier_price: float
+) -> np.ndarray:
+    """Objective (n_x,) of the consistency rounds, given the first round's solution ``first``.
+
+    In dimensionless units: mean depth over the first round's mean depth, minus the price of
+    the mean slack (lengths have mean 1).
+    """
+    n_var, n_cones = program.pairs.n_var, program.pairs.n_cones
+    mean_depth = float(np.mean(first[program.depths]))
+    cost = np.zeros(program.n_x)
+    cost[program.depths] = -1.0 / (n_var * mean_depth)
+    cost[program.slacks] = rigidity / n_cones
+    if program.n_t:
+        cost[program.slacks.stop:] = outlier_price / n_cones
+    return cost
+
+
+def _linearised_lower(program: _ConeProgram, previous: np.ndarray) -> sp.csr_matrix:
+    """Rows (C, n_x) of ``u_fe . (X_fi - X_fj) - l_e + s_fe >= 0`` around depths ``previous``.
+
+    ``u_fe`` is the unit direction of each pair's edge in the previous solution (V,).
+    """
+    pairs = program.pairs
+    vectors = np.stack([m @ previous for m in pairs.diffs], axis=1)
+    vectors /= np.maximum(np.linalg.norm(vectors, axis=1, keepdims=True), 1e-300)
+    along = sum(sp.diags(vectors[:, c]) @ pairs.diffs[c] for c in range(3))
+    return sp.hstack(
+        [along, -pairs.pick, sp.eye(pairs.n_cones), sp.csr_matrix((pairs.n_cones, program.n_t))]
+    ).tocsr()
+
+
+def _consistency_rounds(
+    program: _ConeProgram, cost: np.ndarray, best: np.ndarray, status: str,
+    *, n_rounds: int, tol: float,
+) -> tuple[str, np.ndarray, int, float]:
+    """Linearise the lower bounds around ``best`` (n_x,) and re-solve, up to ``n_rounds`` times.
+
+    Stops early when a round fails (keeping the last solution) or when the depths change by
+    less than ``tol``. Returns the last status, the last solution, the rounds solved and the
+    mean slack of the last solution.
+    """
+    n_solved, shrink = 0, 0.0
+    for _ in range(n_rounds):
+        previous = best[program.depths]
+        status, x = _solve_program(program, cost, _linearised_lower(program, previous))
+        n_solved += 1
+        if x is None:
+            break
+        best = x
+        shrink = float(np.mean(best[program.slacks]))
+        change = np.max(np.abs(best[program.depths] - previous)) / max(np.max(previous), 1e-300)
+        if change < tol:
+            break
+    return status, best, n_solved, shrink
+
+
+def _unpack(pairs: _EdgeImagePairs, x: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Depths (F, P) and lengths (E,) from a solution ``x``, NaN where not unknowns (or no x)."""
+    depths = np.full(pairs.constrained.shape, np.nan)
+    lengths = np.full(pairs.n_edges, np.nan)
+    if x is not None:
+        depths[pairs.constrained] = x[:pairs.n_var]
+        lengths[pairs.used_edges] = x[pairs.n_var:pairs.n_var + pairs.n_len]
+    return depths, lengths
