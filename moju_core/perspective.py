@@ -74,36 +74,44 @@ def prior_shapes(
 ) -> tuple[np.ndarray, SurfaceFit]:
     """Per-image camera-frame shapes (F, P, 3) of the isometric prior, every entry filled.
 
-    ``W`` (2F, P) in pixels, ``visibility`` (F, P) bool.
+    ``W`` (2F, P) in pixels, ``visibility`` (F, P) bool. A seen point the prior leaves
+    without a depth (no neighbour seen with it in that image) is put on its ray at the median
+    depth of its image; a hidden point is taken from the nearest image that has it.
     """
     n_frames, n_points = visibility.shape
     rays = intrinsics.normalise(W).reshape(n_frames, 2, n_points).transpose(0, 2, 1)
     rays = np.where(visibility[:, :, None], rays, np.nan)
     fit = max_depth_shapes(rays, visibility, seed=seed)
-    return _fill_hidden(fit.shapes, visibility), fit
+    depths = fit.depths.copy()
+    unplaced = visibility & ~np.isfinite(depths)
+    if unplaced.any():
+        median = np.nanmedian(np.where(np.isfinite(depths), depths, np.nan), axis=1)
+        depths = np.where(unplaced, median[:, None], depths)
+    shapes = depths[:, :, None] * np.concatenate([rays, np.ones((n_frames, n_points, 1))], 2)
+    return _fill_hidden(shapes, np.isfinite(shapes).all(axis=2)), fit
 
 
-def _fill_hidden(shapes: np.ndarray, visibility: np.ndarray) -> np.ndarray:
-    """Hidden points (F, P, 3) from the nearest frame that sees them, moved with the
-    centroid of the points both frames see; O(F P)."""
-    if visibility.all():
+def _fill_hidden(shapes: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Points without a shape (``~known``, (F, P)) from the nearest frame that has them,
+    moved with the centroid of the frame's known points; O(F P)."""
+    if known.all():
         return shapes
-    n_frames = visibility.shape[0]
+    n_frames = known.shape[0]
     filled = shapes.copy()
     frames = np.arange(n_frames)
-    for point in np.flatnonzero(~visibility.all(axis=0)):
-        seen = np.flatnonzero(visibility[:, point])
+    for point in np.flatnonzero(~known.all(axis=0)):
+        seen = np.flatnonzero(known[:, point])
         nearest = seen[np.abs(frames[:, None] - seen[None, :]).argmin(axis=1)]
-        hidden = np.flatnonzero(~visibility[:, point])
+        hidden = np.flatnonzero(~known[:, point])
         source = nearest[hidden]
-        shift = _centroids(shapes, visibility, hidden) - _centroids(shapes, visibility, source)
+        shift = _centroids(shapes, known, hidden) - _centroids(shapes, known, source)
         filled[hidden, point] = shapes[source, point] + shift
     return filled
 
 
-def _centroids(shapes: np.ndarray, visibility: np.ndarray, frames: np.ndarray) -> np.ndarray:
-    """Centroid (n, 3) of the seen points of each of ``frames``."""
-    seen = visibility[frames][:, :, None]
+def _centroids(shapes: np.ndarray, known: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """Centroid (n, 3) of the known points of each of ``frames``."""
+    seen = known[frames][:, :, None]
     return np.where(seen, shapes[frames], 0.0).sum(axis=1) / seen.sum(axis=1)
 
 
