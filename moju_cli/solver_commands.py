@@ -268,15 +268,12 @@ def _solve(
         with warnings.catch_warnings():
             warnings.showwarning = bar.warn
             # Complete data go through the call as before; a mask only when something is missing.
+            # A mask and a camera only when there is one: complete orthographic tracks go
+            # through the call as before.
             masked = {} if visibility is None else {"visibility": visibility}
+            camera = {} if intrinsics is None else {"intrinsics": intrinsics}
             result = reconstruct(
-                W,
-                params,
-                rotations=rotations,
-                intrinsics=intrinsics,
-                callback=bar,
-                threads=threads,
-                **masked,
+                W, params, rotations=rotations, callback=bar, threads=threads, **masked, **camera
             )
         bar.finish(result)
         return result

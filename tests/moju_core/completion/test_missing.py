@@ -14,7 +14,7 @@ from moju_core.cameras.refinement import project_to_stiefel
 from moju_core.completion import exact_model, gaps, least_squares, missing
 from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.errors import MeasurementError
-from moju_core.loop import admm
+from moju_core.loop import data_terms
 from moju_core.metrics import e3d, rotation_error_deg
 
 
@@ -673,7 +673,7 @@ def test_an_exact_fit_that_throws_lost_tracks_off_the_object_is_solved_again_sof
     # The progress of the second loop continues from the first's, which was abandoned at its
     # first checks (it used to run on to max_iter, 243 iterations, before the soft fit).
     iterating = [p for p in reports if p.stage == "iterating"]
-    assert result.n_iter < len(iterating) <= result.n_iter + 3 * admm.ABANDON_CHECK_EVERY
+    assert result.n_iter < len(iterating) <= result.n_iter + 3 * data_terms.ABANDON_CHECK_EVERY
     assert all(b.iteration > a.iteration for a, b in itertools.pairwise(iterating))
     assert all(b.fraction >= a.fraction for a, b in itertools.pairwise(reports))
     assert result.params.smoothness >= defaults.MIN_DEPTH_PRIOR  # the strong prior stays
