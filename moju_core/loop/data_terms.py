@@ -97,11 +97,16 @@ class DataTerm:
         Per frame and point a 3 x 3 solve over the fitted entries
         (:func:`moju_core.cameras.projection.data_step`); O(F P).
         """
+        self._soft_step(state, target, state.rho)
+
+    @staticmethod
+    def _soft_step(state: LoopState, target: np.ndarray, penalty: float) -> None:
+        """``argmin ||R S - W||^2 + penalty/2 ||S - target||^2`` over the fitted entries."""
         camera.data_step(
             state.back_projected,
             state.normals,
             target,
-            state.rho,
+            penalty,
             out=state.shapes,
             observed=state.observed,
         )
@@ -294,15 +299,7 @@ class AnchoredTerm(SoftTerm):
         self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray
     ) -> None:
         total = state.rho + self.weight
-        pulled = (state.rho * target + self.weight * state.anchor) / total
-        camera.data_step(
-            state.back_projected,
-            state.normals,
-            pulled,
-            total,
-            out=state.shapes,
-            observed=state.observed,
-        )
+        self._soft_step(state, (state.rho * target + self.weight * state.anchor) / total, total)
 
 
 def beyond(shapes: np.ndarray, limit: float) -> bool:
