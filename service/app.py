@@ -186,6 +186,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             ),
             storage=LocalStorage(settings.data_dir),
             keys=keys,
+            upload_checks=anyio.CapacityLimiter(settings.upload_checks),
         )
         watchdog = Watchdog(redis, services.store, services.storage, settings)
         app.state.services = services

@@ -2,23 +2,26 @@
 
 Nothing is enqueued unless the whole input passed here: the body is at most
 ``MOJU_MAX_UPLOAD_BYTES`` (``Content-Length`` checked first, then the bytes actually
-streamed, so the server never reads more than the limit), files are parsed by
-:func:`moju_core.io.read_measurements` (no pickles, declared sizes checked before any data is
-read), and the parameters are :class:`moju_core.params.SolverParams`.
+streamed, so the server never reads more than the limit), files and JSON bodies are streamed
+to disk and parsed by :func:`moju_core.io.read_measurements` in a child process with its own
+memory limit (:mod:`service.check_process`, :mod:`service.input_check`: no pickles, declared
+sizes checked before any data is read), and the parameters are
+:class:`moju_core.params.SolverParams`.
 """
 
 from __future__ import annotations
 
 import functools
 import json
+import shutil
+import tempfile
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from typing import Any
 
 import anyio
 import anyio.to_thread
-import numpy as np
 from pydantic import ValidationError
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
@@ -26,12 +29,20 @@ from starlette.requests import Request
 
 from moju_core import feasibility, file_types
 from moju_core.errors import MeasurementError, MeasurementTooLarge
-from moju_core.io import Measurements, read_measurements
 from moju_core.params import SolverParams, rotation_method
-from moju_core.validation import tracks_to_W
+from service.check_process import run_check
 from service.errors import BodyTimeout, InvalidInput, UnsupportedMediaType, UploadTooLarge
-from service.schemas import InputSummary, TracksBody
-from service.settings import WORKER_MEMORY_SETTING, Settings
+from service.input_check import (
+    HOW_TO_SEND,
+    TOO_DEEP,
+    CheckedInput,
+    InputCheck,
+    InputKind,
+    admit,
+    check_input,
+)
+from service.schemas import InputSummary
+from service.settings import Settings
 from service.validation_messages import describe_errors
 from service.video_uploads import StagedVideo, stage_video, video_extension
 
@@ -39,32 +50,29 @@ _FILE_FORMATS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv"
 _FORM_FIELDS = ("file", "params", "mask")
 #: Longest 'params' part read when it comes as a file (every parameter fits in a few hundred).
 MAX_PARAMS_BYTES = 65536
-_TOO_DEEP = (
-    "{what} nests arrays or objects too deeply to be read; tracks are F x P x 2 nested lists "
-    "and parameters a flat object"
-)
-_HOW_TO_SEND = (
-    "send multipart/form-data with a 'file' field (npz, HDF5 or CSV, or a video: mp4, webm "
-    "or avi, with an optional 'mask' PNG) and an optional 'params' field (a JSON object), or "
-    "application/json with 'tracks' (F x P x 2) and 'params'"
-)
+_TOO_DEEP = TOO_DEEP
+_HOW_TO_SEND = HOW_TO_SEND
+_COPY_CHUNK = 2**20
 
 
 @dataclass(frozen=True)
 class Submission:
     """A validated job submission, ready to be stored and enqueued.
 
-    Either ``measurements``, or for a video upload ``video`` (tracked by the worker); the
+    Either ``staged_input`` (the checked input, written as ``input.npz`` in a private
+    temporary directory), or for a video upload ``video`` (tracked by the worker); the
     caller closes the submission (:meth:`close`) once it is stored.
     """
 
-    measurements: Measurements | None
+    staged_input: Path | None
     params: SolverParams
     summary: InputSummary
     video: StagedVideo | None = None
 
     def close(self) -> None:
-        """Remove a staged video's temporary files (nothing for measurements)."""
+        """Remove the temporary files (whatever was not moved into the job's area)."""
+        if self.staged_input is not None:
+            shutil.rmtree(self.staged_input.parent, ignore_errors=True)
         if self.video is not None:
             self.video.close()
 
@@ -175,20 +183,64 @@ def _file_format(upload: UploadFile) -> str:
     return _FILE_FORMATS.get(PurePath(upload.filename or "").suffix.lower(), "csv")
 
 
-def _read_file(upload: UploadFile, settings: Settings) -> tuple[Measurements, str]:
-    """Parse the uploaded file (blocking: run in a worker thread)."""
-    file_format = _file_format(upload)
-    measurements = read_measurements(
-        upload.file,
-        format=file_format,
+def _staging_directory() -> Path:
+    """A private temporary directory for one upload (removed by Submission.close)."""
+    return Path(tempfile.mkdtemp(prefix="moju-upload-"))
+
+
+def _copy_upload(upload: UploadFile, target: Path) -> None:
+    """Copy the spooled upload to ``target`` in bounded chunks (blocking: worker thread)."""
+    upload.file.seek(0)
+    with open(target, "wb") as handle:
+        shutil.copyfileobj(upload.file, handle, _COPY_CHUNK)
+
+
+async def _check(
+    source: Path, kind: InputKind, settings: Settings, limiter: anyio.CapacityLimiter
+) -> tuple[CheckedInput, Path]:
+    """Check ``source`` in a child process, at most ``limiter`` at once; return what it found
+    and the normalised input it wrote next to ``source``."""
+    check = InputCheck(
+        source=source,
+        kind=kind,
+        target=source.with_name("input.npz"),
         max_points=settings.max_points,
         max_frames=settings.max_frames,
-        admit=functools.partial(_admit, limit=settings.worker_memory_bytes),
+        worker_memory_bytes=settings.worker_memory_bytes,
     )
-    return measurements, file_format
+    checked = await anyio.to_thread.run_sync(
+        functools.partial(
+            run_check,
+            check_input,
+            check,
+            memory_bytes=settings.upload_check_memory_bytes,
+            timeout=settings.upload_check_timeout,
+        ),
+        limiter=limiter,
+    )
+    return checked, check.target
 
 
-async def _from_multipart(request: Request, settings: Settings) -> Submission:
+async def _checked_file(
+    upload: UploadFile, settings: Settings, limiter: anyio.CapacityLimiter
+) -> tuple[CheckedInput, Path, str]:
+    """Stage the uploaded file and check it: what was found, the normalised input, the format."""
+    file_format = _file_format(upload)
+    directory = _staging_directory()
+    try:
+        source = directory / "upload"
+        await anyio.to_thread.run_sync(_copy_upload, upload, source)
+        checked, staged = await _check(source, file_format, settings, limiter)  # type: ignore[arg-type]
+        source.unlink()
+    except BaseException:
+        shutil.rmtree(directory, ignore_errors=True)
+        raise
+    return checked, staged, file_format
+
+
+async def _from_multipart(
+    request: Request, settings: Settings, limiter: anyio.CapacityLimiter
+) -> Submission:
     parser = MultiPartParser(
         request.headers,
         _limited_stream(request, settings.max_upload_bytes, timeout=settings.body_timeout),
@@ -236,11 +288,11 @@ async def _from_multipart(request: Request, settings: Settings) -> Submission:
                 "a 'mask' goes with a video upload only (mp4, webm or avi in 'file'); the "
                 "'file' is not a video"
             )
-        measurements, file_format = await anyio.to_thread.run_sync(_read_file, upload, settings)
+        checked, staged, file_format = await _checked_file(upload, settings, limiter)
         size = upload.size or 0
     finally:
         await form.close()
-    return _submission(measurements, params, file_format, filename, size)
+    return _submission(checked, staged, params, file_format, filename, size)
 
 
 async def _video_submission(
@@ -267,26 +319,7 @@ async def _video_submission(
     except BaseException:
         staged.close()
         raise
-    return Submission(measurements=None, params=params, summary=staged.summary, video=staged)
-
-
-def _array(name: str, value: Any) -> np.ndarray:
-    try:
-        return np.asarray(value, dtype=np.float64)
-    except ValueError as exc:
-        raise MeasurementError(
-            f"{name} is not a rectangular array ({exc}); every row needs the same length"
-        ) from None
-
-
-def _measurements_from_json(body: TracksBody) -> Measurements:
-    W = tracks_to_W(_array("tracks", body.tracks))  # null coordinates become NaN
-    rotations = None if body.rotations is None else _array("rotations", body.rotations)
-    truth = None if body.ground_truth is None else _array("ground_truth", body.ground_truth)
-    visibility = None
-    if body.visibility is not None:
-        visibility = _array("visibility", body.visibility).astype(bool)
-    return Measurements(W=W, rotations=rotations, ground_truth=truth, visibility=visibility)
+    return Submission(staged_input=None, params=params, summary=staged.summary, video=staged)
 
 
 def _json_too_large(size: int | str, limit: int) -> UploadTooLarge:
@@ -297,58 +330,60 @@ def _json_too_large(size: int | str, limit: int) -> UploadTooLarge:
     )
 
 
-def _parse_json_body(body: bytearray) -> tuple[TracksBody, Measurements]:
-    """Parse and validate a JSON body (blocking, and about 16 times its size in memory: run
-    in a worker thread, on a body of at most MOJU_MAX_JSON_BYTES)."""
-    try:
-        value = json.loads(body)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InvalidInput(f"the body is not valid JSON ({exc}); {_HOW_TO_SEND}") from None
-    except RecursionError:
-        raise InvalidInput(_TOO_DEEP.format(what="the JSON body")) from None
-    except ValueError as exc:  # e.g. an integer of more than 4300 digits
-        raise InvalidInput(f"the JSON body cannot be read: {exc}; {_HOW_TO_SEND}") from None
-    if not isinstance(value, dict):
-        raise InvalidInput(f"the JSON body must be an object; {_HOW_TO_SEND}")
-    try:
-        # Strict: "5" or true are not numbers, "1.5" is not a coordinate.
-        parsed = TracksBody.model_validate(value, strict=True)
-    except ValidationError as exc:
-        raise InvalidInput(describe_errors(exc.errors(), parameters_at="params")) from None
-    del value
-    return parsed, _measurements_from_json(parsed)
-
-
-async def _from_json(request: Request, settings: Settings) -> Submission:
+async def _from_json(
+    request: Request, settings: Settings, limiter: anyio.CapacityLimiter
+) -> Submission:
     limit, too_large = settings.max_json_bytes, _json_too_large
     if settings.max_upload_bytes <= limit:
         limit, too_large = settings.max_upload_bytes, _too_large
     declared = request.headers.get("content-length")
     if declared is not None and declared.isdigit() and int(declared) > limit:
         raise too_large(int(declared), limit)
-    body = bytearray()
-    async for chunk in _limited_stream(request, limit, too_large, settings.body_timeout):
-        body += chunk
-    parsed, measurements = await anyio.to_thread.run_sync(_parse_json_body, body)
-    n_frames, n_points = measurements.n_frames, measurements.n_points
-    if n_points > settings.max_points or n_frames > settings.max_frames:
-        raise UploadTooLarge(
-            f"the tracks hold {n_frames} frames x {n_points} points; the limit is "
-            f"{settings.max_frames} frames and {settings.max_points} points. Send fewer frames "
-            "or subsample the points"
-        )
-    params = parsed.params or SolverParams()
-    return _submission(measurements, params, "json", None, len(body))
+    directory = _staging_directory()
+    try:
+        source = directory / "body.json"
+        size = 0
+        # Written to disk as it arrives and parsed by the check's child process: parsing
+        # JSON holds the GIL and takes about 16 times the body's size in memory.
+        with open(source, "wb") as body:
+            async for chunk in _limited_stream(request, limit, too_large, settings.body_timeout):
+                body.write(chunk)
+                size += len(chunk)
+        checked, staged = await _check(source, "json", settings, limiter)
+        source.unlink()
+        params = checked.params or SolverParams()
+        return _submission(checked, staged, params, "json", None, size)
+    except BaseException:
+        shutil.rmtree(directory, ignore_errors=True)
+        raise
 
 
 def _submission(
-    measurements: Measurements,
+    checked: CheckedInput,
+    staged: Path,
     params: SolverParams,
     file_format: str,
     filename: str | None,
     size: int,
 ) -> Submission:
-    if params.rotations == "known" and measurements.rotations is None:
+    """The submission of a checked input, once the parameters fit it (else 422; the staged
+    files are then removed)."""
+    try:
+        return _fitted_submission(checked, staged, params, file_format, filename, size)
+    except BaseException:
+        shutil.rmtree(staged.parent, ignore_errors=True)
+        raise
+
+
+def _fitted_submission(
+    checked: CheckedInput,
+    staged: Path,
+    params: SolverParams,
+    file_format: str,
+    filename: str | None,
+    size: int,
+) -> Submission:
+    if params.rotations == "known" and not checked.has_rotations:
         raise InvalidInput(
             "params.rotations is 'known' but the input has no rotations: add R (F x 2 x 3) "
             "to the file (or 'rotations' to the JSON body), or choose rotations 'auto' to "
@@ -356,27 +391,24 @@ def _submission(
         )
     # The job record shows the resolved method ("known" or the estimator), not "unset".
     params = params.model_copy(
-        update={"rotations": rotation_method(params.rotations, measurements.rotations is not None)}
+        update={"rotations": rotation_method(params.rotations, checked.has_rotations)}
     )
     check_params_fit(
-        params,
-        measurements.n_frames,
-        measurements.n_points,
-        has_rotations=measurements.rotations is not None,
+        params, checked.n_frames, checked.n_points, has_rotations=checked.has_rotations
     )
     summary = InputSummary(
-        frames=measurements.n_frames,
-        points=measurements.n_points,
+        frames=checked.n_frames,
+        points=checked.n_points,
         format=file_format,
         filename=filename,
         size_bytes=size,
-        has_rotations=measurements.rotations is not None,
-        has_ground_truth=measurements.ground_truth is not None,
-        has_faces=measurements.faces is not None,
-        has_colors=measurements.colors is not None,
-        observed_fraction=measurements.observed_fraction,
+        has_rotations=checked.has_rotations,
+        has_ground_truth=checked.has_ground_truth,
+        has_faces=checked.has_faces,
+        has_colors=checked.has_colors,
+        observed_fraction=checked.observed_fraction,
     )
-    return Submission(measurements=measurements, params=params, summary=summary)
+    return Submission(staged_input=staged, params=params, summary=summary)
 
 
 def check_params_fit(
@@ -394,21 +426,22 @@ def check_params_fit(
         raise InvalidInput(str(exc)) from None
 
 
-def _admit(n_frames: int, n_points: int, *, limit: int) -> None:
-    """The memory check, made by the file readers from the headers before reading data."""
-    feasibility.check_memory(n_frames, n_points, limit, limit_name=WORKER_MEMORY_SETTING)
-
-
 def check_memory(summary: InputSummary, limit: int) -> None:
     """Refuse a job whose estimated solver memory exceeds ``limit`` (HTTP 413)."""
     try:
-        _admit(summary.frames, summary.points, limit=limit)
+        admit(summary.frames, summary.points, limit=limit)
     except MeasurementTooLarge as exc:
         raise UploadTooLarge(str(exc)) from None
 
 
-async def read_submission(request: Request, settings: Settings) -> Submission:
+async def read_submission(
+    request: Request, settings: Settings, limiter: anyio.CapacityLimiter | None = None
+) -> Submission:
     """Read, bound and validate the body of ``POST /v1/jobs``.
+
+    Files and JSON bodies are streamed to a private temporary directory and checked in a
+    child process (:mod:`service.check_process`), at most ``limiter`` at once (by default
+    one at a time); the API process never holds their arrays.
 
     Raises
     ------
@@ -421,12 +454,14 @@ async def read_submission(request: Request, settings: Settings) -> Submission:
         A body that is neither multipart/form-data nor JSON (415).
     """
     check_content_length(request, settings.max_upload_bytes)
+    if limiter is None:
+        limiter = anyio.CapacityLimiter(1)
     media_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     try:
         if media_type == "multipart/form-data":
-            submission = await _from_multipart(request, settings)
+            submission = await _from_multipart(request, settings, limiter)
         elif media_type == "application/json":
-            submission = await _from_json(request, settings)
+            submission = await _from_json(request, settings, limiter)
         else:
             raise UnsupportedMediaType(
                 f"unsupported content type {media_type or 'none'!r}; {_HOW_TO_SEND}"
