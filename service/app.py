@@ -33,7 +33,7 @@ from service.retention import sweep
 from service.routes import api_docs, downloads, health, jobs, viewer
 from service.settings import Settings, get_settings
 from service.storage import JobFilesMissing, LocalStorage
-from service.validation_messages import describe_errors
+from service.validation_messages import describe_errors, shorten
 from service.watchdog import Watchdog
 
 logger = logging.getLogger(__name__)
@@ -86,7 +86,8 @@ def _install_error_handlers(app: FastAPI) -> None:
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         detail = exc.detail
         if exc.status_code == 404 and detail == "Not Found":
-            detail = f"no endpoint {request.method} {request.url.path}; the API is listed at /docs"
+            path = shorten(request.url.path, 200)  # a path may be tens of kB long
+            detail = f"no endpoint {shorten(request.method, 20)} {path}; the API is listed at /docs"
         return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=exc.headers)
 
     @app.exception_handler(RequestValidationError)

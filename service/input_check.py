@@ -32,6 +32,11 @@ from service.validation_messages import describe_errors
 
 InputKind = Literal["npz", "h5", "csv", "json"]
 
+#: Largest coordinate magnitude accepted: the solver squares and sums coordinates, and
+#: values near 1e300 overflow to infinity there (the job would fail much later with
+#: "W is zero after centring").
+MAX_COORDINATE = 1e100
+
 TOO_DEEP = (
     "{what} nests arrays or objects too deeply to be read; tracks are F x P x 2 nested lists "
     "and parameters a flat object"
@@ -145,6 +150,20 @@ def _file_input(check: InputCheck) -> Measurements:
         )
 
 
+def check_magnitude(measurements: Measurements) -> None:
+    """Refuse coordinates beyond :data:`MAX_COORDINATE` in W (or the ground truth)."""
+    for name, values in (("W", measurements.W), ("gt", measurements.ground_truth)):
+        if values is None or values.size == 0:
+            continue
+        largest = max(abs(float(np.nanmin(values))), abs(float(np.nanmax(values))))
+        if largest > MAX_COORDINATE:
+            raise MeasurementError(
+                f"{name} holds coordinates as large as {largest:.3g}; the solver squares them, "
+                f"so they must stay within {MAX_COORDINATE:g} in magnitude. Rescale the "
+                "tracks (e.g. to pixels, or to a unit scale)"
+            )
+
+
 def check_input(check: InputCheck) -> CheckedInput:
     """Read and validate ``check.source``; write the normalised input to ``check.target``.
 
@@ -162,6 +181,7 @@ def check_input(check: InputCheck) -> CheckedInput:
         measurements, params = _json_input(check)
     else:
         measurements = _file_input(check)
+    check_magnitude(measurements)
     write_measurements(check.target, measurements)
     return CheckedInput(
         n_frames=measurements.n_frames,

@@ -11,6 +11,7 @@ sizes checked before any data is read), and the parameters are
 
 from __future__ import annotations
 
+import codecs
 import functools
 import json
 import shutil
@@ -43,7 +44,7 @@ from service.input_check import (
 )
 from service.schemas import InputSummary
 from service.settings import Settings
-from service.validation_messages import describe_errors
+from service.validation_messages import describe_errors, shorten
 from service.video_uploads import StagedVideo, stage_video, video_extension
 
 _FILE_FORMATS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv"}
@@ -172,15 +173,61 @@ def _display_name(filename: str | None) -> str | None:
     return PurePath(filename.replace("\\", "/")).name[:255] or None
 
 
+#: Images sent where tracks or a video belong, by their first bytes.
+_IMAGES = {file_types.PNG_MAGIC: "a PNG image", file_types.JPEG_MAGIC: "a JPEG image"}
+#: Names of videos whose content is not a video this server reads (or is empty).
+_VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".webm", ".mkv", ".avi")
+_WHAT_TO_SEND = (
+    "upload tracks (npz or HDF5 with W or tracks, or CSV with the header frame,point,x,y) or "
+    "a video (mp4, webm or avi) in 'file'"
+)
+
+
+def _not_utf8_at(head: bytes) -> int | None:
+    """Offset of the first byte of ``head`` that cannot start UTF-8 text (a character cut at
+    the end of ``head`` is fine), or None."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    try:
+        decoder.decode(head, final=False)
+    except UnicodeDecodeError as exc:
+        return exc.start
+    return None
+
+
 def _file_format(upload: UploadFile) -> str:
-    """npz, h5 or csv: by the first bytes (as moju_core.io does), then by the file name."""
+    """npz, h5 or csv: by the first bytes (as moju_core.io does), then by the file name.
+
+    Images, files named like a video that are none, and binary files that would otherwise be
+    read as CSV are refused here (422), with what to send instead.
+    """
     upload.file.seek(0)
     head = upload.file.read(file_types.HEAD_BYTES)
     upload.file.seek(0)
     found = file_types.array_file_type(head)
     if found in ("npz", "h5"):
         return found
-    return _FILE_FORMATS.get(PurePath(upload.filename or "").suffix.lower(), "csv")
+    for magic, what in _IMAGES.items():
+        if head.startswith(magic):
+            raise InvalidInput(
+                f"the uploaded file is {what}; {_WHAT_TO_SEND}. An image is accepted only as "
+                "the 'mask' (PNG) of a video upload"
+            )
+    name = _display_name(upload.filename) or "the uploaded file"
+    suffix = PurePath(name).suffix.lower()
+    if suffix in _VIDEO_SUFFIXES:
+        state = "is empty" if not head else "does not start like an mp4, webm or avi video"
+        raise InvalidInput(
+            f"{shorten(name)} is named like a video but {state}; {_WHAT_TO_SEND}. Check that "
+            "the file is complete (videos are recognised by their first bytes)"
+        )
+    file_format = _FILE_FORMATS.get(suffix, "csv")
+    bad_byte = _not_utf8_at(head) if file_format == "csv" else None
+    if bad_byte is not None:
+        raise InvalidInput(
+            f"the uploaded file is not CSV text (byte {bad_byte} is not valid UTF-8), and its "
+            f"first bytes are not those of an npz, HDF5 or video file; {_WHAT_TO_SEND}"
+        )
+    return file_format
 
 
 def _staging_directory() -> Path:
@@ -259,7 +306,8 @@ async def _from_multipart(
         unexpected = [name for name in form.keys() if name not in _FORM_FIELDS]
         if unexpected:
             raise InvalidInput(
-                f"unexpected form field(s) {', '.join(map(repr, unexpected))}; {_HOW_TO_SEND}"
+                f"unexpected form field(s) {', '.join(repr(shorten(n)) for n in unexpected[:5])}; "
+                f"{_HOW_TO_SEND}"
             )
         upload = form.get("file")
         if upload is None:
