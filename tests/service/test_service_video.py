@@ -123,6 +123,9 @@ def test_video_job_tracks_then_solves_and_serves_the_tracks(
     assert W.shape == (2 * N_FRAMES, tracking["reconstructed"])
     assert tracking["tracks"] == job["input"]["points"] >= tracking["reconstructed"]
     assert tracking["fraction_kept"] == pytest.approx(visibility.mean(), abs=0.1)
+    # The finished job's input says what was solved, not the upload's estimate.
+    assert finished["input"]["points"] == tracking["reconstructed"]
+    assert finished["input"]["observed_fraction"] == pytest.approx(visibility.mean())
     decoded = next(open_video(video_files["video"]).frames())
     start = W[:2].T.astype(np.int64)
     np.testing.assert_array_equal(colors, decoded[start[:, 1], start[:, 0]])
