@@ -222,6 +222,7 @@ def test_video_limits_are_named_in_the_refusal(
         ("small", "mask mask.png is 10 x 10 pixels, the video's frames are 96 x 72"),
         ("jpeg", "is not a PNG image"),
         ("empty", "marks no pixel"),
+        ("photo", "marks 100 % of the frame"),
     ],
 )
 def test_bad_masks_are_refused(
@@ -231,6 +232,9 @@ def test_bad_masks_are_refused(
         data = cv2.imencode(".png", np.full((10, 10), 255, np.uint8))[1].tobytes()
     elif mask == "jpeg":
         data = cv2.imencode(".jpg", np.full((72, 96), 255, np.uint8))[1].tobytes()
+    elif mask == "photo":  # an RGB frame, non-zero everywhere, sent as the mask
+        frame = np.random.default_rng(0).integers(1, 256, size=(72, 96, 3), dtype=np.uint8)
+        data = cv2.imencode(".png", frame)[1].tobytes()
     else:
         data = cv2.imencode(".png", np.zeros((72, 96), np.uint8))[1].tobytes()
     response = post(client, video_files["video"].read_bytes(), data)
