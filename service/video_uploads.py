@@ -137,9 +137,9 @@ def _check_coverage(mask: np.ndarray) -> None:
     coverage = float(mask.mean())
     if coverage > MAX_MASK_COVERAGE:
         raise VideoError(
-            f"the mask marks {coverage * 100:.0f} % of the frame, so it looks like a picture of the "
-            "frame rather than a mask: paint the object white (non-zero) and everything else "
-            "black (0), or send no mask to track the textured part of the whole frame"
+            f"the mask marks {coverage * 100:.0f} % of the frame, so it looks like a picture "
+            "of the frame rather than a mask: paint the object white (non-zero) and everything "
+            "else black (0), or send no mask to track the textured part of the whole frame"
         )
 
 

@@ -279,3 +279,24 @@ def test_video_upload_through_the_api_runs_in_a_real_worker(
             ply = PlyData.read(io.BytesIO(archive.read(names[0])))
         assert len(names) == N_FRAMES
         assert ply["vertex"].count == n_points  # shapes for every track
+
+
+def test_track_overlay_of_a_dense_grid_is_not_a_blob(tmp_path: Path) -> None:
+    """Tracks every 4 pixels: paths are drawn for a spread-out subset, the frame stays visible."""
+    from service.track_overlay import overlay_png
+
+    frame = np.full((120, 160, 3), 128, np.uint8)
+    first_frame = tmp_path / "first.png"
+    cv2.imwrite(str(first_frame), frame)
+    x, y = np.meshgrid(np.arange(8, 152, 4.0), np.arange(8, 112, 4.0))
+    n_frames = 12
+    W = np.vstack([np.vstack([x.ravel() + f, y.ravel() + 0.5 * f]) for f in range(n_frames)])
+    tracks = tmp_path / "tracks.npz"
+    np.savez(tracks, W=W)
+    drawn = cv2.imdecode(np.frombuffer(overlay_png(first_frame, tracks), np.uint8), 1)
+    green = np.all(drawn == [80, 220, 80], axis=2) | (drawn[:, :, 1] > 150)
+    changed = np.any(drawn != frame, axis=2)
+    assert 0 < green.mean() < 0.25, green.mean()
+    assert changed.mean() < 0.5, changed.mean()
+    ends = W[-2:].T.round().astype(int)  # every track still gets its red end dot
+    assert np.all(drawn[ends[:, 1], ends[:, 0]] == [40, 40, 240])
