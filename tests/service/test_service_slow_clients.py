@@ -2,7 +2,7 @@
 server, while /healthz keeps answering.
 
 The API runs as ``moju serve`` runs it (``python -m service.uvicorn_server``) with short
-limits (1 s to send headers, 100 bytes/s for a body after 1 s, 1 s idle), so that the test
+limits (3 s to send headers, 100 bytes/s for a body after 1 s, 1 s idle), so that the test
 counts closed connections rather than waiting out the production defaults.
 """
 
@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import io
 import resource
+import socket
 import subprocess
 import sys
 import time
@@ -18,6 +20,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 from service_testing import REPO_ROOT, worker_environment
 
@@ -47,7 +50,7 @@ def guarded_api(settings: Settings, tmp_path: Path, many_descriptors: None) -> I
     port = free_port()
     env = worker_environment(
         settings,
-        MOJU_HEADER_TIMEOUT="1",
+        MOJU_HEADER_TIMEOUT="3",
         MOJU_MIN_BODY_RATE="100",
         MOJU_BODY_RATE_GRACE="1",
         MOJU_IDLE_TIMEOUT="1",
@@ -153,3 +156,44 @@ def test_two_thousand_slow_connections_are_closed_and_healthz_answers(guarded_ap
     assert health and set(health) == {200}
     with httpx.Client() as client:
         assert client.get(f"{guarded_api}/healthz").status_code == 200
+
+
+def _npz_bytes(n_points: int) -> bytes:
+    rng = np.random.default_rng(4)
+    shape = rng.normal(size=(3, n_points))
+    W = np.vstack([rng.normal(size=(2, 3)) @ shape for _ in range(6)])
+    buffer = io.BytesIO()
+    np.savez(buffer, W=W)
+    return buffer.getvalue()
+
+
+def _multipart(part: bytes) -> tuple[bytes, str]:
+    boundary = "slow-clients-test"
+    body = (
+        f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="w.npz"\r\n'
+        "Content-Type: application/octet-stream\r\n\r\n"
+    ).encode()
+    return body + part + f"\r\n--{boundary}--\r\n".encode(), boundary
+
+
+def test_uploads_of_every_size_pass_the_guard(guarded_api: str) -> None:
+    """Bodies under and over the 64 KiB the app waits for, and a client that waits for
+    '100 Continue' before sending its body (as curl does above 1 MB), are all read."""
+    for n_points in (50, 2000):  # about 5 kB and 100 kB of npz
+        files = {"file": ("w.npz", _npz_bytes(n_points), "application/octet-stream")}
+        answer = httpx.post(f"{guarded_api}/v1/jobs", files=files, timeout=60)
+        assert answer.status_code == 202, answer.text
+    body, boundary = _multipart(_npz_bytes(2000))
+    port = int(guarded_api.rsplit(":", 1)[1])
+    with socket.create_connection(("127.0.0.1", port), timeout=60) as connection:
+        connection.sendall(
+            f"POST /v1/jobs HTTP/1.1\r\nHost: x\r\nExpect: 100-continue\r\n"
+            f"Content-Type: multipart/form-data; boundary={boundary}\r\n"
+            f"Content-Length: {len(body)}\r\n\r\n".encode()
+        )
+        assert connection.recv(1024).startswith(b"HTTP/1.1 100 ")
+        connection.sendall(body)
+        answer = b""
+        while b"\r\n\r\n" not in answer:
+            answer += connection.recv(65536)
+    assert answer.startswith(b"HTTP/1.1 202 "), answer[:300]
