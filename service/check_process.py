@@ -129,6 +129,20 @@ def _shorten(message: str) -> str:
     return message[:_MAX_MESSAGE] + " ... (message shortened)"
 
 
+def run_here(function: Callable[[Any], T], argument: Any) -> T:
+    """``function(argument)`` in this process, its refusals raised as by :func:`run_check`
+    (blocking: run in a worker thread). Only for inputs known to be small."""
+    try:
+        return function(argument)
+    except MemoryError:
+        raise UploadTooLarge("this server has no memory left to check the upload") from None
+    except Exception as exc:
+        kind, message = _refusal(exc)
+    if kind == "too_large":
+        raise UploadTooLarge(_shorten(message))
+    raise InvalidInput(_shorten(message))
+
+
 def run_check(
     function: Callable[[Any], T], argument: Any, *, memory_bytes: int, timeout: float
 ) -> T:

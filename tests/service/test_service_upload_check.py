@@ -139,7 +139,7 @@ def test_checks_at_once_are_bounded(settings: Settings, monkeypatch: pytest.Monk
                 running[0] -= 1
 
     monkeypatch.setattr(uploads, "run_check", counting)
-    body = _npz(W=_moving_W(10, 300))
+    body = _npz(W=_moving_W(10, 8000))  # 1.3 MB: over what is checked in the API itself
     answers = []
     with TestClient(create_app(bounded)) as client:
 
@@ -173,3 +173,35 @@ def test_the_child_memory_cap_holds() -> None:
     assert run_check(_allocate, 16 * MIB, memory_bytes=256 * MIB, timeout=60) == 2 * MIB
     with pytest.raises(UploadTooLarge, match="MOJU_UPLOAD_CHECK_MEMORY_BYTES"):
         run_check(_allocate, 512 * MIB, memory_bytes=128 * MIB, timeout=60)
+
+
+def test_small_uploads_are_checked_without_a_child_process(
+    settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A small npz or JSON body is checked in the API's thread; an HDF5 or CSV file, of any
+    size, and an npz whose members declare much data go to a child process."""
+    children = []
+    real_run_check = uploads.run_check
+
+    def counting(function, check, **kwargs):
+        children.append(check.kind)
+        return real_run_check(function, check, **kwargs)
+
+    monkeypatch.setattr(uploads, "run_check", counting)
+    W = _moving_W(10, 300)
+    zeros = io.BytesIO()
+    np.savez_compressed(zeros, W=np.vstack([W, np.zeros((400, 300))]))  # 0.1 MB, 1 MB inside
+    csv = "frame,point,x,y\n" + "".join(
+        f"{f},{j},{W[2 * f, j]},{W[2 * f + 1, j]}\n" for f in range(10) for j in range(300)
+    )
+    with TestClient(create_app(settings)) as client:
+        for name, content in (("w.npz", _npz(W=W)), ("t.csv", csv.encode())):
+            files = {"file": (name, content, "application/octet-stream")}
+            assert client.post("/v1/jobs", files=files).status_code == 202
+        tracks = W.reshape(10, 2, 300).transpose(0, 2, 1).tolist()
+        assert client.post("/v1/jobs", json={"tracks": tracks}).status_code == 202
+        assert children == ["csv"]
+        monkeypatch.setattr(uploads, "SMALL_ARRAY_BYTES", 2**19)
+        files = {"file": ("z.npz", zeros.getvalue(), "application/octet-stream")}
+        client.post("/v1/jobs", files=files)
+    assert children == ["csv", "npz"]
