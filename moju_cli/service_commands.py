@@ -230,6 +230,15 @@ class _ProgressBar:
     default=None,
     help="JSON file with solver parameters (--param overrides it).",
 )
+@click.option(
+    "--mask",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help=(
+        "With a video INPUT: PNG of the first frame's size, non-zero (or opaque) on the "
+        "object to track."
+    ),
+)
 @click.option("--wait", is_flag=True, help="Follow the job until it ends.")
 @click.option(
     "-o",
@@ -244,10 +253,12 @@ def submit(
     api_key: str | None,
     param: tuple[str, ...],
     params_json: Path | None,
+    mask: Path | None,
     wait: bool,
     output: Path | None,
 ) -> None:
-    """Upload INPUT (npz, HDF5 or CSV tracks) to a MoJu service as a job."""
+    """Upload INPUT (npz, HDF5 or CSV tracks, or a video: mp4, webm or avi, tracked by the
+    service first) to a MoJu service as a job."""
     from moju_cli.stop_reasons import describe_stop
     from service.client import MojuClient, MojuError
 
@@ -257,7 +268,7 @@ def submit(
     job = None
     with MojuClient(server, api_key=api_key) as client:
         try:
-            job = client.submit(input_file, params or None)
+            job = client.submit(input_file, params or None, mask=mask)
             click.echo(f"job {job.id} {job.status.value} ({job.input.frames} frames x "
                        f"{job.input.points} points)")  # fmt: skip
             if not (wait or output):

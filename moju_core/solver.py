@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -87,7 +88,7 @@ class _Reporter:
 
 def reconstruct(
     W: np.ndarray,
-    params: SolverParams | None = None,
+    params: SolverParams | Mapping[str, Any] | None = None,
     *,
     rotations: np.ndarray | None = None,
     visibility: np.ndarray | None = None,
@@ -103,9 +104,10 @@ def reconstruct(
         Measurement matrix: rows ``2f`` and ``2f + 1`` are the x and y image coordinates of
         frame f, column j is point j (any unit, e.g. pixels). NaN (x and y together) where a
         point is not observed in a frame.
-    params : SolverParams, optional
+    params : SolverParams or mapping, optional
         Solver parameters; ``None`` means all defaults (every ``None`` field is derived from
-        the data, see :mod:`moju_core.defaults`).
+        the data, see :mod:`moju_core.defaults`). A mapping such as ``{"max_iter": 5}`` is
+        validated as :class:`SolverParams`.
     rotations : array_like of shape (F, 2, 3), optional
         Known camera rotations. Used exactly when ``params.rotations`` is ``"known"`` or unset
         (``None``, the default: ``"known"`` when rotations are given, else ``"auto"``; see
@@ -150,10 +152,39 @@ def reconstruct(
     Cancelled
         When the callback asks to stop.
     """
+    params = _as_params(params)
     if threads is None:
         return _reconstruct(W, params, rotations, visibility, intrinsics, callback)
     with threadpool_limits(limits=threads):
         return _reconstruct(W, params, rotations, visibility, intrinsics, callback)
+
+
+#: More frames than this many times the points reads like a transposed W (P x 2F): dense
+#: tracks have far more points than frames.
+_TRANSPOSED_RATIO = 10
+
+
+def _as_params(params: object) -> SolverParams | None:
+    """``params`` as SolverParams: None stays None, a mapping is validated, others refused."""
+    if params is None or isinstance(params, SolverParams):
+        return params
+    if isinstance(params, Mapping):
+        return SolverParams.model_validate(dict(params))
+    raise TypeError(
+        f"params must be a SolverParams or a mapping such as {{'max_iter': 100}}, not "
+        f"{type(params).__name__}"
+    )
+
+
+def _warn_if_transposed(n_frames: int, n_points: int) -> None:
+    if n_frames > _TRANSPOSED_RATIO * n_points:
+        warnings.warn(
+            f"W has {2 * n_frames} rows and {n_points} columns, so it is read as {n_frames} "
+            f"frames of {n_points} points; dense tracks have far more points than frames. If "
+            f"the rows are the points (W of shape (P, 2F)), pass W.T",
+            UserWarning,
+            stacklevel=5,
+        )
 
 
 def _reconstruct(
@@ -212,6 +243,7 @@ def _validate(
     submission, :mod:`moju_core.feasibility`)."""
     W, visibility = check_observations(W, visibility)
     n_frames, n_points = W.shape[0] // 2, W.shape[1]
+    _warn_if_transposed(n_frames, n_points)
     if params.rotations == "known":
         if rotations is None:
             raise MeasurementError(

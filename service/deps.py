@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Annotated
 from uuid import UUID
 
+import anyio
 from fastapi import Depends, Path, Request
 from fastapi.security import APIKeyHeader, HTTPBearer
 from redis import Redis
@@ -29,6 +30,8 @@ class Services:
     store: JobStore
     storage: Storage
     keys: ApiKeys
+    #: Bounds the upload checks running at once (MOJU_UPLOAD_CHECKS).
+    upload_checks: anyio.CapacityLimiter
 
 
 # The dependencies below are ``async def`` although they never await: FastAPI runs a plain

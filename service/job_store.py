@@ -48,7 +48,7 @@ from rq.job import Job as RQJob
 
 from service.queueing import job_id_of_rq_job, rq_job_id
 from service.rq_internals import RQ_ALIVE, parse_rq_state, read_rq_state, started_rq_job_ids
-from service.schemas import JobRecord
+from service.schemas import InputSummary, JobRecord
 from service.states import ACTIVE_STATES, JobStatus
 
 logger = logging.getLogger(__name__)
@@ -549,13 +549,20 @@ class JobStore:
         summary: Mapping[str, Any],
         progress: Mapping,
         attempt: int | None = None,
+        input_summary: InputSummary | None = None,
     ) -> bool:
-        """running -> finished, with the result summary and the final progress."""
+        """running -> finished, with the result summary and the final progress.
+
+        ``input_summary`` replaces the job's ``input`` when the worker learned more about it
+        than the upload told (a video job: the points actually tracked and observed).
+        """
         fields = {
             "ended_at": repr(time.time()),
             "result": json.dumps(summary),
             "progress": json.dumps(progress),
         }
+        if input_summary is not None:
+            fields["input"] = input_summary.model_dump_json()
         return self._change(job_id, JobStatus.FINISHED, {JobStatus.RUNNING}, fields, attempt)
 
     def fail(self, job_id: UUID, error: str, attempt: int | None = None) -> bool:

@@ -65,6 +65,63 @@ class Settings(BaseSettings):
             "request is answered 408 and its partial upload deleted."
         ),
     )
+    header_timeout: float = Field(
+        20.0,
+        gt=0,
+        le=3600,
+        description=(
+            "Seconds a client has to send a request's headers, from the moment it connects "
+            "(or its previous answer ended); a connection that takes longer is closed."
+        ),
+    )
+    min_body_rate: int = Field(
+        500,
+        ge=0,
+        description=(
+            "Bytes per second a request body must arrive at on average, once "
+            "body_rate_grace seconds have passed since its headers; a slower upload is "
+            "answered 408 and its connection closed. 0: no minimum."
+        ),
+    )
+    body_rate_grace: float = Field(
+        20.0,
+        gt=0,
+        le=3600,
+        description="Seconds a request body may take before min_body_rate is enforced.",
+    )
+    idle_timeout: int = Field(
+        5,
+        ge=1,
+        le=3600,
+        description=(
+            "Seconds a connection may stay open between two requests (HTTP keep-alive) "
+            "before the server closes it."
+        ),
+    )
+    upload_checks: int = Field(
+        2,
+        ge=1,
+        le=64,
+        description=(
+            "Uploads checked (parsed and validated) at once, each in a child process of the "
+            "API; more wait their turn, so parallel uploads queue instead of adding up."
+        ),
+    )
+    upload_check_memory_bytes: int = Field(
+        2 * GIB,
+        ge=64 * MIB,
+        description=(
+            "Memory one upload check may take (its child process's address space, beyond "
+            "what it starts with); an upload that needs more is refused with 413. The "
+            "child ends after the check, so its memory goes back to the system."
+        ),
+    )
+    upload_check_timeout: float = Field(
+        300.0,
+        gt=0,
+        le=3600,
+        description="Seconds one upload check may run before it is stopped (413).",
+    )
     max_points: int = Field(50_000, ge=3, description="Largest number of points P per job.")
     max_frames: int = Field(2_000, ge=2, description="Largest number of frames F per job.")
     max_video_bytes: int = Field(

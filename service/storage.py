@@ -101,6 +101,9 @@ class Storage(Protocol):
     def write_input(self, job_id: UUID, measurements: Measurements) -> None:
         """Store the validated input of a job."""
 
+    def move_input(self, job_id: UUID, staged: Path) -> None:
+        """Move an input already validated and written elsewhere (``input.npz`` layout) in."""
+
     def read_input(self, job_id: UUID) -> Measurements:
         """Read a job's input back."""
 
@@ -182,6 +185,11 @@ class LocalStorage:
     def write_input(self, job_id: UUID, measurements: Measurements) -> None:
         """Store the normalised input as ``input.npz`` (compressed, atomic)."""
         write_measurements(self._existing_directory(job_id) / INPUT_NAME, measurements)
+
+    def move_input(self, job_id: UUID, staged: Path) -> None:
+        """Move a staged ``input.npz`` (checked and written by the upload check) in."""
+        with atomic_output(self._existing_directory(job_id) / INPUT_NAME) as temporary:
+            shutil.move(staged, temporary)
 
     def read_input(self, job_id: UUID) -> Measurements:
         """Read ``input.npz``; raises :class:`JobFilesMissing` when the job was deleted."""

@@ -6,7 +6,8 @@ Process tree::
      |- redis-server            only without MOJU_REDIS_URL; loopback, a free port kept
      |                          across restarts, append-only file under <data_dir>/redis
      |- python -m worker  x N   each forks a work horse per job
-     '- python -m uvicorn       the API on --host:--port (default 127.0.0.1:8000)
+     '- python -m service.uvicorn_server   the API under uvicorn on --host:--port (default
+                                           127.0.0.1:8000), with the slow-client limits
 
 A child that dies is started again after a pause that doubles with each quick death
 (:class:`RestartPolicy`); the supervisor logs each death and restart and tells the API what is
@@ -225,7 +226,7 @@ class Supervisor:
         """The command line of the API."""
         options = self.options
         return [
-            sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app",
+            sys.executable, "-m", "service.uvicorn_server",
             "--host", options.host, "--port", str(options.port),
             "--log-level", options.log_level, "--timeout-graceful-shutdown", "3",
         ]  # fmt: skip

@@ -1,8 +1,9 @@
 """The first frame of a video job with its tracks drawn on it, for the web page.
 
-Every track is drawn as its path over the frames (the positions where it was followed, in
-pixels of the frame) in green, ending in a dot where it was last seen: where the paths stop
-early, the tracker lost the point.
+Every track gets a dot where it was last seen (red): where the dots lie short of the object's
+motion, the tracker lost the point. Paths over the frames (green) are drawn for one track per
+cell of :data:`PATH_SPACING` pixels (by where the track was first seen): the tracks of a dense
+grid (every 4 pixels by default) drawn all at once are a solid green blob.
 """
 
 from __future__ import annotations
@@ -13,6 +14,15 @@ import numpy as np
 
 _PATH_BGR = (80, 220, 80)
 _END_BGR = (40, 40, 240)
+#: Pixels between the starts of two drawn paths (at least).
+PATH_SPACING = 16
+
+
+def _spread_out(starts: np.ndarray, spacing: int) -> np.ndarray:
+    """Indices of the first track in each ``spacing`` x ``spacing`` cell, from (P, 2) starts."""
+    cells = np.floor(starts / spacing).astype(np.int64)
+    _, first = np.unique(cells, axis=0, return_index=True)
+    return np.sort(first)
 
 
 def overlay_png(first_frame: Path, tracks_file: Path) -> bytes:
@@ -29,13 +39,15 @@ def overlay_png(first_frame: Path, tracks_file: Path) -> bytes:
     with np.load(tracks_file, allow_pickle=False) as data:
         W = np.asarray(data["W"], dtype=np.float64)
     positions = W.reshape(-1, 2, W.shape[1]).transpose(2, 0, 1)  # (P, F, 2)
-    paths, ends = [], []
-    for track in positions:
-        seen = track[np.isfinite(track[:, 0])]
-        if len(seen) > 1:
-            paths.append(np.round(seen).astype(np.int32).reshape(-1, 1, 2))
-        if len(seen):
-            ends.append(np.round(seen[-1]).astype(np.int32))
+    seen_tracks = [track[np.isfinite(track[:, 0])] for track in positions]
+    seen_tracks = [seen for seen in seen_tracks if len(seen)]
+    ends = [np.round(seen[-1]).astype(np.int32) for seen in seen_tracks]
+    starts = np.array([seen[0] for seen in seen_tracks]).reshape(-1, 2)
+    paths = [
+        np.round(seen_tracks[index]).astype(np.int32).reshape(-1, 1, 2)
+        for index in _spread_out(starts, PATH_SPACING)
+        if len(seen_tracks[index]) > 1
+    ]
     cv2.polylines(image, paths, isClosed=False, color=_PATH_BGR, thickness=1, lineType=cv2.LINE_AA)
     for x, y in ends:
         image[max(y, 0) : y + 1, max(x, 0) : x + 1] = _END_BGR

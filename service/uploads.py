@@ -2,23 +2,28 @@
 
 Nothing is enqueued unless the whole input passed here: the body is at most
 ``MOJU_MAX_UPLOAD_BYTES`` (``Content-Length`` checked first, then the bytes actually
-streamed, so the server never reads more than the limit), files are parsed by
-:func:`moju_core.io.read_measurements` (no pickles, declared sizes checked before any data is
-read), and the parameters are :class:`moju_core.params.SolverParams`.
+streamed, so the server never reads more than the limit), files and JSON bodies are streamed
+to disk and parsed by :func:`moju_core.io.read_measurements` in a child process with its own
+memory limit (:mod:`service.check_process`, :mod:`service.input_check`: no pickles, declared
+sizes checked before any data is read), and the parameters are
+:class:`moju_core.params.SolverParams`.
 """
 
 from __future__ import annotations
 
+import codecs
 import functools
 import json
+import shutil
+import tempfile
+import zipfile
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from typing import Any
 
 import anyio
 import anyio.to_thread
-import numpy as np
 from pydantic import ValidationError
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
@@ -26,45 +31,55 @@ from starlette.requests import Request
 
 from moju_core import feasibility, file_types
 from moju_core.errors import MeasurementError, MeasurementTooLarge
-from moju_core.io import Measurements, read_measurements
 from moju_core.params import SolverParams, rotation_method
-from moju_core.validation import tracks_to_W
+from service.check_process import run_check, run_here
 from service.errors import BodyTimeout, InvalidInput, UnsupportedMediaType, UploadTooLarge
-from service.schemas import InputSummary, TracksBody
-from service.settings import WORKER_MEMORY_SETTING, Settings
-from service.validation_messages import describe_errors
+from service.input_check import (
+    HOW_TO_SEND,
+    TOO_DEEP,
+    CheckedInput,
+    InputCheck,
+    InputKind,
+    admit,
+    check_input,
+)
+from service.schemas import InputSummary
+from service.settings import Settings
+from service.validation_messages import describe_errors, shorten
 from service.video_uploads import StagedVideo, stage_video, video_extension
 
 _FILE_FORMATS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv"}
 _FORM_FIELDS = ("file", "params", "mask")
 #: Longest 'params' part read when it comes as a file (every parameter fits in a few hundred).
 MAX_PARAMS_BYTES = 65536
-_TOO_DEEP = (
-    "{what} nests arrays or objects too deeply to be read; tracks are F x P x 2 nested lists "
-    "and parameters a flat object"
-)
-_HOW_TO_SEND = (
-    "send multipart/form-data with a 'file' field (npz, HDF5 or CSV, or a video: mp4, webm "
-    "or avi, with an optional 'mask' PNG) and an optional 'params' field (a JSON object), or "
-    "application/json with 'tracks' (F x P x 2) and 'params'"
-)
+_TOO_DEEP = TOO_DEEP
+_HOW_TO_SEND = HOW_TO_SEND
+_COPY_CHUNK = 2**20
+#: Uploads of at most this many bytes whose arrays are small are checked in a thread of the
+#: API (see _known_small); others in a child process with its own memory limit.
+SMALL_UPLOAD_BYTES = 2**20
+#: Largest total of an npz's members (uncompressed) checked in the API's own thread.
+SMALL_ARRAY_BYTES = 16 * 2**20
 
 
 @dataclass(frozen=True)
 class Submission:
     """A validated job submission, ready to be stored and enqueued.
 
-    Either ``measurements``, or for a video upload ``video`` (tracked by the worker); the
+    Either ``staged_input`` (the checked input, written as ``input.npz`` in a private
+    temporary directory), or for a video upload ``video`` (tracked by the worker); the
     caller closes the submission (:meth:`close`) once it is stored.
     """
 
-    measurements: Measurements | None
+    staged_input: Path | None
     params: SolverParams
     summary: InputSummary
     video: StagedVideo | None = None
 
     def close(self) -> None:
-        """Remove a staged video's temporary files (nothing for measurements)."""
+        """Remove the temporary files (whatever was not moved into the job's area)."""
+        if self.staged_input is not None:
+            shutil.rmtree(self.staged_input.parent, ignore_errors=True)
         if self.video is not None:
             self.video.close()
 
@@ -164,31 +179,147 @@ def _display_name(filename: str | None) -> str | None:
     return PurePath(filename.replace("\\", "/")).name[:255] or None
 
 
+#: Images sent where tracks or a video belong, by their first bytes.
+_IMAGES = {file_types.PNG_MAGIC: "a PNG image", file_types.JPEG_MAGIC: "a JPEG image"}
+#: Names of videos whose content is not a video this server reads (or is empty).
+_VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".webm", ".mkv", ".avi")
+_WHAT_TO_SEND = (
+    "upload tracks (npz or HDF5 with W or tracks, or CSV with the header frame,point,x,y) or "
+    "a video (mp4, webm or avi) in 'file'"
+)
+
+
+def _not_utf8_at(head: bytes) -> int | None:
+    """Offset of the first byte of ``head`` that cannot start UTF-8 text (a character cut at
+    the end of ``head`` is fine), or None."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    try:
+        decoder.decode(head, final=False)
+    except UnicodeDecodeError as exc:
+        return exc.start
+    return None
+
+
 def _file_format(upload: UploadFile) -> str:
-    """npz, h5 or csv: by the first bytes (as moju_core.io does), then by the file name."""
+    """npz, h5 or csv: by the first bytes (as moju_core.io does), then by the file name.
+
+    Images, files named like a video that are none, and binary files that would otherwise be
+    read as CSV are refused here (422), with what to send instead.
+    """
     upload.file.seek(0)
     head = upload.file.read(file_types.HEAD_BYTES)
     upload.file.seek(0)
     found = file_types.array_file_type(head)
     if found in ("npz", "h5"):
         return found
-    return _FILE_FORMATS.get(PurePath(upload.filename or "").suffix.lower(), "csv")
+    for magic, what in _IMAGES.items():
+        if head.startswith(magic):
+            raise InvalidInput(
+                f"the uploaded file is {what}; {_WHAT_TO_SEND}. An image is accepted only as "
+                "the 'mask' (PNG) of a video upload"
+            )
+    name = _display_name(upload.filename) or "the uploaded file"
+    suffix = PurePath(name).suffix.lower()
+    if suffix in _VIDEO_SUFFIXES:
+        state = "is empty" if not head else "does not start like an mp4, webm or avi video"
+        raise InvalidInput(
+            f"{shorten(name)} is named like a video but {state}; {_WHAT_TO_SEND}. Check that "
+            "the file is complete (videos are recognised by their first bytes)"
+        )
+    file_format = _FILE_FORMATS.get(suffix, "csv")
+    bad_byte = _not_utf8_at(head) if file_format == "csv" else None
+    if bad_byte is not None:
+        raise InvalidInput(
+            f"the uploaded file is not CSV text (byte {bad_byte} is not valid UTF-8), and its "
+            f"first bytes are not those of an npz, HDF5 or video file; {_WHAT_TO_SEND}"
+        )
+    return file_format
 
 
-def _read_file(upload: UploadFile, settings: Settings) -> tuple[Measurements, str]:
-    """Parse the uploaded file (blocking: run in a worker thread)."""
-    file_format = _file_format(upload)
-    measurements = read_measurements(
-        upload.file,
-        format=file_format,
+def _staging_directory() -> Path:
+    """A private temporary directory for one upload (removed by Submission.close)."""
+    return Path(tempfile.mkdtemp(prefix="moju-upload-"))
+
+
+def _copy_upload(upload: UploadFile, target: Path) -> None:
+    """Copy the spooled upload to ``target`` in bounded chunks (blocking: worker thread)."""
+    upload.file.seek(0)
+    with open(target, "wb") as handle:
+        shutil.copyfileobj(upload.file, handle, _COPY_CHUNK)
+
+
+async def _check(
+    source: Path, kind: InputKind, settings: Settings, limiter: anyio.CapacityLimiter
+) -> tuple[CheckedInput, Path]:
+    """Check ``source`` in a child process, at most ``limiter`` at once; return what it found
+    and the normalised input it wrote next to ``source``."""
+    check = InputCheck(
+        source=source,
+        kind=kind,
+        target=source.with_name("input.npz"),
         max_points=settings.max_points,
         max_frames=settings.max_frames,
-        admit=functools.partial(_admit, limit=settings.worker_memory_bytes),
+        worker_memory_bytes=settings.worker_memory_bytes,
     )
-    return measurements, file_format
+    if _known_small(source, kind):
+        # Its arrays are small whatever it holds: a child process would only add its start.
+        checked = await anyio.to_thread.run_sync(run_here, check_input, check)
+        return checked, check.target
+    checked = await anyio.to_thread.run_sync(
+        functools.partial(
+            run_check,
+            check_input,
+            check,
+            memory_bytes=settings.upload_check_memory_bytes,
+            timeout=settings.upload_check_timeout,
+        ),
+        limiter=limiter,
+    )
+    return checked, check.target
 
 
-async def _from_multipart(request: Request, settings: Settings) -> Submission:
+def _known_small(source: Path, kind: InputKind) -> bool:
+    """True when reading ``source`` cannot take much memory: a JSON body of at most
+    :data:`SMALL_UPLOAD_BYTES` (about 16 times that once parsed; every entry is on the wire),
+    or an npz of at most that size whose zip directory declares at most
+    :data:`SMALL_ARRAY_BYTES` of members (the reader refuses members that hold more than
+    their directory entry says). HDF5 and CSV always go to a child process: a few bytes of
+    either can declare a large array (fill values; two rows naming frame 1999 and point
+    49999)."""
+    if source.stat().st_size > SMALL_UPLOAD_BYTES:
+        return False
+    if kind == "json":
+        return True
+    if kind != "npz":
+        return False
+    try:
+        with zipfile.ZipFile(source) as archive:
+            members = archive.infolist()
+    except (zipfile.BadZipFile, OSError, ValueError):
+        return False  # the check in a child process says what is wrong
+    return sum(member.file_size for member in members) <= SMALL_ARRAY_BYTES
+
+
+async def _checked_file(
+    upload: UploadFile, settings: Settings, limiter: anyio.CapacityLimiter
+) -> tuple[CheckedInput, Path, str]:
+    """Stage the uploaded file and check it: what was found, the normalised input, the format."""
+    file_format = _file_format(upload)
+    directory = _staging_directory()
+    try:
+        source = directory / "upload"
+        await anyio.to_thread.run_sync(_copy_upload, upload, source)
+        checked, staged = await _check(source, file_format, settings, limiter)  # type: ignore[arg-type]
+        source.unlink()
+    except BaseException:
+        shutil.rmtree(directory, ignore_errors=True)
+        raise
+    return checked, staged, file_format
+
+
+async def _from_multipart(
+    request: Request, settings: Settings, limiter: anyio.CapacityLimiter
+) -> Submission:
     parser = MultiPartParser(
         request.headers,
         _limited_stream(request, settings.max_upload_bytes, timeout=settings.body_timeout),
@@ -207,7 +338,8 @@ async def _from_multipart(request: Request, settings: Settings) -> Submission:
         unexpected = [name for name in form.keys() if name not in _FORM_FIELDS]
         if unexpected:
             raise InvalidInput(
-                f"unexpected form field(s) {', '.join(map(repr, unexpected))}; {_HOW_TO_SEND}"
+                f"unexpected form field(s) {', '.join(repr(shorten(n)) for n in unexpected[:5])}; "
+                f"{_HOW_TO_SEND}"
             )
         upload = form.get("file")
         if upload is None:
@@ -236,11 +368,11 @@ async def _from_multipart(request: Request, settings: Settings) -> Submission:
                 "a 'mask' goes with a video upload only (mp4, webm or avi in 'file'); the "
                 "'file' is not a video"
             )
-        measurements, file_format = await anyio.to_thread.run_sync(_read_file, upload, settings)
+        checked, staged, file_format = await _checked_file(upload, settings, limiter)
         size = upload.size or 0
     finally:
         await form.close()
-    return _submission(measurements, params, file_format, filename, size)
+    return _submission(checked, staged, params, file_format, filename, size)
 
 
 async def _video_submission(
@@ -267,26 +399,7 @@ async def _video_submission(
     except BaseException:
         staged.close()
         raise
-    return Submission(measurements=None, params=params, summary=staged.summary, video=staged)
-
-
-def _array(name: str, value: Any) -> np.ndarray:
-    try:
-        return np.asarray(value, dtype=np.float64)
-    except ValueError as exc:
-        raise MeasurementError(
-            f"{name} is not a rectangular array ({exc}); every row needs the same length"
-        ) from None
-
-
-def _measurements_from_json(body: TracksBody) -> Measurements:
-    W = tracks_to_W(_array("tracks", body.tracks))  # null coordinates become NaN
-    rotations = None if body.rotations is None else _array("rotations", body.rotations)
-    truth = None if body.ground_truth is None else _array("ground_truth", body.ground_truth)
-    visibility = None
-    if body.visibility is not None:
-        visibility = _array("visibility", body.visibility).astype(bool)
-    return Measurements(W=W, rotations=rotations, ground_truth=truth, visibility=visibility)
+    return Submission(staged_input=None, params=params, summary=staged.summary, video=staged)
 
 
 def _json_too_large(size: int | str, limit: int) -> UploadTooLarge:
@@ -297,58 +410,60 @@ def _json_too_large(size: int | str, limit: int) -> UploadTooLarge:
     )
 
 
-def _parse_json_body(body: bytearray) -> tuple[TracksBody, Measurements]:
-    """Parse and validate a JSON body (blocking, and about 16 times its size in memory: run
-    in a worker thread, on a body of at most MOJU_MAX_JSON_BYTES)."""
-    try:
-        value = json.loads(body)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InvalidInput(f"the body is not valid JSON ({exc}); {_HOW_TO_SEND}") from None
-    except RecursionError:
-        raise InvalidInput(_TOO_DEEP.format(what="the JSON body")) from None
-    except ValueError as exc:  # e.g. an integer of more than 4300 digits
-        raise InvalidInput(f"the JSON body cannot be read: {exc}; {_HOW_TO_SEND}") from None
-    if not isinstance(value, dict):
-        raise InvalidInput(f"the JSON body must be an object; {_HOW_TO_SEND}")
-    try:
-        # Strict: "5" or true are not numbers, "1.5" is not a coordinate.
-        parsed = TracksBody.model_validate(value, strict=True)
-    except ValidationError as exc:
-        raise InvalidInput(describe_errors(exc.errors(), parameters_at="params")) from None
-    del value
-    return parsed, _measurements_from_json(parsed)
-
-
-async def _from_json(request: Request, settings: Settings) -> Submission:
+async def _from_json(
+    request: Request, settings: Settings, limiter: anyio.CapacityLimiter
+) -> Submission:
     limit, too_large = settings.max_json_bytes, _json_too_large
     if settings.max_upload_bytes <= limit:
         limit, too_large = settings.max_upload_bytes, _too_large
     declared = request.headers.get("content-length")
     if declared is not None and declared.isdigit() and int(declared) > limit:
         raise too_large(int(declared), limit)
-    body = bytearray()
-    async for chunk in _limited_stream(request, limit, too_large, settings.body_timeout):
-        body += chunk
-    parsed, measurements = await anyio.to_thread.run_sync(_parse_json_body, body)
-    n_frames, n_points = measurements.n_frames, measurements.n_points
-    if n_points > settings.max_points or n_frames > settings.max_frames:
-        raise UploadTooLarge(
-            f"the tracks hold {n_frames} frames x {n_points} points; the limit is "
-            f"{settings.max_frames} frames and {settings.max_points} points. Send fewer frames "
-            "or subsample the points"
-        )
-    params = parsed.params or SolverParams()
-    return _submission(measurements, params, "json", None, len(body))
+    directory = _staging_directory()
+    try:
+        source = directory / "body.json"
+        size = 0
+        # Written to disk as it arrives and parsed by the check's child process: parsing
+        # JSON holds the GIL and takes about 16 times the body's size in memory.
+        with open(source, "wb") as body:
+            async for chunk in _limited_stream(request, limit, too_large, settings.body_timeout):
+                body.write(chunk)
+                size += len(chunk)
+        checked, staged = await _check(source, "json", settings, limiter)
+        source.unlink()
+        params = checked.params or SolverParams()
+        return _submission(checked, staged, params, "json", None, size)
+    except BaseException:
+        shutil.rmtree(directory, ignore_errors=True)
+        raise
 
 
 def _submission(
-    measurements: Measurements,
+    checked: CheckedInput,
+    staged: Path,
     params: SolverParams,
     file_format: str,
     filename: str | None,
     size: int,
 ) -> Submission:
-    if params.rotations == "known" and measurements.rotations is None:
+    """The submission of a checked input, once the parameters fit it (else 422; the staged
+    files are then removed)."""
+    try:
+        return _fitted_submission(checked, staged, params, file_format, filename, size)
+    except BaseException:
+        shutil.rmtree(staged.parent, ignore_errors=True)
+        raise
+
+
+def _fitted_submission(
+    checked: CheckedInput,
+    staged: Path,
+    params: SolverParams,
+    file_format: str,
+    filename: str | None,
+    size: int,
+) -> Submission:
+    if params.rotations == "known" and not checked.has_rotations:
         raise InvalidInput(
             "params.rotations is 'known' but the input has no rotations: add R (F x 2 x 3) "
             "to the file (or 'rotations' to the JSON body), or choose rotations 'auto' to "
@@ -356,27 +471,24 @@ def _submission(
         )
     # The job record shows the resolved method ("known" or the estimator), not "unset".
     params = params.model_copy(
-        update={"rotations": rotation_method(params.rotations, measurements.rotations is not None)}
+        update={"rotations": rotation_method(params.rotations, checked.has_rotations)}
     )
     check_params_fit(
-        params,
-        measurements.n_frames,
-        measurements.n_points,
-        has_rotations=measurements.rotations is not None,
+        params, checked.n_frames, checked.n_points, has_rotations=checked.has_rotations
     )
     summary = InputSummary(
-        frames=measurements.n_frames,
-        points=measurements.n_points,
+        frames=checked.n_frames,
+        points=checked.n_points,
         format=file_format,
         filename=filename,
         size_bytes=size,
-        has_rotations=measurements.rotations is not None,
-        has_ground_truth=measurements.ground_truth is not None,
-        has_faces=measurements.faces is not None,
-        has_colors=measurements.colors is not None,
-        observed_fraction=measurements.observed_fraction,
+        has_rotations=checked.has_rotations,
+        has_ground_truth=checked.has_ground_truth,
+        has_faces=checked.has_faces,
+        has_colors=checked.has_colors,
+        observed_fraction=checked.observed_fraction,
     )
-    return Submission(measurements=measurements, params=params, summary=summary)
+    return Submission(staged_input=staged, params=params, summary=summary)
 
 
 def check_params_fit(
@@ -394,21 +506,22 @@ def check_params_fit(
         raise InvalidInput(str(exc)) from None
 
 
-def _admit(n_frames: int, n_points: int, *, limit: int) -> None:
-    """The memory check, made by the file readers from the headers before reading data."""
-    feasibility.check_memory(n_frames, n_points, limit, limit_name=WORKER_MEMORY_SETTING)
-
-
 def check_memory(summary: InputSummary, limit: int) -> None:
     """Refuse a job whose estimated solver memory exceeds ``limit`` (HTTP 413)."""
     try:
-        _admit(summary.frames, summary.points, limit=limit)
+        admit(summary.frames, summary.points, limit=limit)
     except MeasurementTooLarge as exc:
         raise UploadTooLarge(str(exc)) from None
 
 
-async def read_submission(request: Request, settings: Settings) -> Submission:
+async def read_submission(
+    request: Request, settings: Settings, limiter: anyio.CapacityLimiter | None = None
+) -> Submission:
     """Read, bound and validate the body of ``POST /v1/jobs``.
+
+    Files and JSON bodies are streamed to a private temporary directory and checked in a
+    child process (:mod:`service.check_process`), at most ``limiter`` at once (by default
+    one at a time); the API process never holds their arrays.
 
     Raises
     ------
@@ -421,12 +534,14 @@ async def read_submission(request: Request, settings: Settings) -> Submission:
         A body that is neither multipart/form-data nor JSON (415).
     """
     check_content_length(request, settings.max_upload_bytes)
+    if limiter is None:
+        limiter = anyio.CapacityLimiter(1)
     media_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     try:
         if media_type == "multipart/form-data":
-            submission = await _from_multipart(request, settings)
+            submission = await _from_multipart(request, settings, limiter)
         elif media_type == "application/json":
-            submission = await _from_json(request, settings)
+            submission = await _from_json(request, settings, limiter)
         else:
             raise UnsupportedMediaType(
                 f"unsupported content type {media_type or 'none'!r}; {_HOW_TO_SEND}"

@@ -11,11 +11,22 @@ _MAX_SHOWN_ERRORS = 5
 _LOCATION_KINDS = {"query": "query parameter", "path": "path parameter", "header": "header"}
 
 
+#: Longest field or parameter name shown back (a client may send a name of any length).
+_MAX_NAME = 60
+
+
+def shorten(text: str, limit: int = _MAX_NAME) -> str:
+    """``text`` cut to ``limit`` characters, saying how long it was when cut."""
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}... ({len(text)} characters)"
+
+
 def _path(location: Sequence[str | int]) -> str:
     text = ""
     for part in location:
         text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
-    return text
+    return shorten(text)
 
 
 def _shown(value: Any) -> str:

@@ -35,6 +35,9 @@ from moju_core.footage.video import VideoInfo, check_clip, open_video, read_mask
 from service.schemas import InputSummary, VideoSummary
 from service.settings import Settings
 
+#: Share of the frame above which a mask is taken for a photo rather than a mask (an RGB
+#: frame sent as the mask is non-zero nearly everywhere).
+MAX_MASK_COVERAGE = 0.98
 #: Largest mask PNG read (a 1920 x 1080 RGBA PNG without compression is about 8 MiB).
 MAX_MASK_BYTES = 16 * 2**20
 _COPY_CHUNK = 2**20
@@ -129,6 +132,17 @@ def _write_png(path: Path, frame: np.ndarray) -> None:
         raise OSError(f"OpenCV could not write {path.name}")
 
 
+def _check_coverage(mask: np.ndarray) -> None:
+    """Refuse a mask that marks (nearly) the whole frame: most likely a photo of the frame."""
+    coverage = float(mask.mean())
+    if coverage > MAX_MASK_COVERAGE:
+        raise VideoError(
+            f"the mask marks {coverage * 100:.0f} % of the frame, so it looks like a picture "
+            "of the frame rather than a mask: paint the object white (non-zero) and everything "
+            "else black (0), or send no mask to track the textured part of the whole frame"
+        )
+
+
 def _check_points(n_points: int, has_mask: bool, settings: Settings) -> None:
     if n_points < 3:
         raise VideoError(
@@ -192,6 +206,7 @@ def _stage(
         mask_path = directory / "mask.png"
         _copy(mask, mask_path, MAX_MASK_BYTES, "mask", "a PNG of the first frame's size")
         object_mask = read_mask(mask_path, (info.width, info.height))
+        _check_coverage(object_mask)
     else:
         object_mask = np.ones((info.height, info.width), dtype=bool)
     n_points = count_grid_points(object_mask, DEFAULT_STEP)

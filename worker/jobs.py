@@ -372,8 +372,22 @@ def _run_attempt(
         store.fail(job_id, f"internal error: {type(exc).__name__}: {exc}", attempt)
         raise
     summary, final = _summary(result, caught, tracking), _final_progress(result, reporter)
+    solved_input = None
+    if tracking is not None:
+        # The upload's figures were estimates (grid points on the mask, all observed): the
+        # job now says what was tracked and solved.
+        solved_input = record.input.model_copy(
+            update={
+                "points": int(result.shapes.shape[1]),
+                "observed_fraction": (
+                    1.0 if result.visibility is None else float(np.mean(result.visibility))
+                ),
+            }
+        )
     if not _until_redis_answers(
-        lambda: store.finish(job_id, summary, final, attempt), patience, job_id
+        lambda: store.finish(job_id, summary, final, attempt, input_summary=solved_input),
+        patience,
+        job_id,
     ):
         status = store.status(job_id)
         if status in (JobStatus.FAILED, JobStatus.QUEUED):

@@ -224,6 +224,24 @@
       this.styleSelect.addEventListener("change", () => this.redraw());
       this.filledSelect.addEventListener("change", () => this.redraw());
       this.curveSelect.addEventListener("change", () => this.drawCurve());
+      // plotly's "responsive" follows the window only: when the container narrows without a
+      // window resize (the first frame of a video appearing beside it after the plots were
+      // drawn), the plots would keep their width and push the page sideways.
+      if (typeof ResizeObserver !== "undefined") {
+        let width = 0;
+        new ResizeObserver((entries) => {
+          const now = Math.round(entries[0].contentRect.width);
+          if (now === width) {
+            return;
+          }
+          width = now;
+          for (const plot of [this.scene, this.curve]) {
+            if (plot._fullLayout && !plot.hidden) {
+              Plotly.Plots.resize(plot);
+            }
+          }
+        }).observe(c);
+      }
       this.cameraButton.addEventListener("click", () => {
         if (this.summary) {
           // Kept for the next frames' layouts, so that drawing them does not undo it.

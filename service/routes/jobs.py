@@ -137,8 +137,8 @@ def _write_upload(services: Services, record: JobRecord, submission: Submission)
     video = submission.video
     if video is not None:
         services.storage.write_video(record.id, video.video, video.mask, video.first_frame)
-    elif submission.measurements is not None:
-        services.storage.write_input(record.id, submission.measurements)
+    elif submission.staged_input is not None:
+        services.storage.move_input(record.id, submission.staged_input)
     else:  # read_submission gives one or the other
         raise ValueError("a submission holds measurements or a video")
 
@@ -287,7 +287,7 @@ async def create_job(
     request: Request, services: ServicesDep, caller: Caller, response: Response
 ) -> JobResource:
     """Validate, store and enqueue one job."""
-    submission = await read_submission(request, services.settings)
+    submission = await read_submission(request, services.settings, services.upload_checks)
     record = JobRecord(
         id=uuid4(),
         status=JobStatus.QUEUED,

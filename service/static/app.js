@@ -289,7 +289,10 @@
       if (p.gap !== null && p.gap !== undefined) {
         parts.push(`gap ${p.gap.toExponential(2)}`);
       }
-      if (p.eta !== null && p.eta !== undefined) {
+      // The time left is an extrapolation: only once a few steps were timed, and not as a
+      // meaningless "0.0 s" (a job about to end, or a first report).
+      const timed = p.stage === "tracking" ? p.iteration >= 2 : p.iteration >= 3;
+      if (p.eta !== null && p.eta !== undefined && timed && p.eta >= 0.5) {
         parts.push(`about ${seconds(p.eta)} left`);
       }
       cell.append(bar, element("span", { class: "progress-text" }, parts.join(" \u00b7 ")));

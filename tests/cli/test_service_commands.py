@@ -405,3 +405,19 @@ def test_submit_sends_the_api_key(redis_url: str, tmp_path: Path, monkeypatch) -
         assert accepted.exit_code == 0, accepted.output
         assert "queued (10 frames x 50 points)" in accepted.output
         assert key not in accepted.output
+
+
+def test_submit_sends_a_mask(redis_url: str, tmp_path: Path) -> None:
+    """--mask goes to the server as the upload's 'mask' part (here refused: no video)."""
+    from service.settings import Settings
+
+    settings = Settings(redis_url=redis_url, data_dir=tmp_path / "data", cleanup_interval=0)
+    path = write_measurements(
+        tmp_path / "w.npz", Measurements(W=make_sequence("face1", n_points=50).W)
+    )
+    mask = tmp_path / "mask.png"
+    mask.write_bytes(b"\x89PNG\r\n\x1a\n")
+    with serving(settings) as url:
+        answer = CliRunner().invoke(submit, [str(path), "--server", url, "--mask", str(mask)])
+    assert answer.exit_code == 1
+    assert "a 'mask' goes with a video upload only" in answer.output

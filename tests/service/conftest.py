@@ -21,6 +21,22 @@ from service.app import create_app
 from service.settings import Settings
 
 
+def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:
+    """End the run with a line saying that the browser tests did not run, and how to run them."""
+    import os
+
+    chromium = Path(os.environ.get("MOJU_TEST_CHROMIUM", "/usr/bin/chromium"))
+    skipped = terminalreporter.stats.get("skipped", [])
+    if chromium.is_file() or not any("test_service_browser" in r.nodeid for r in skipped):
+        return
+    terminalreporter.write_line(
+        f"the browser tests of the web page did not run: no chromium at {chromium} "
+        "(sudo apt-get install chromium, or set MOJU_TEST_CHROMIUM to a chromium binary)",
+        yellow=True,
+        bold=True,
+    )
+
+
 @pytest.fixture(scope="session")
 def small_sequence() -> Sequence:
     """face1 with 300 points and 10 frames (solves in well under a second)."""

@@ -226,7 +226,8 @@ def test_h5_bytes_are_not_materialised_for_a_refused_file() -> None:
 def test_json_body_is_parsed_off_the_event_loop(
     admitting: TestClient, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The parse runs in a worker thread, so a large body never blocks other requests."""
+    """A small body is parsed in a worker thread, a large one (over 1 MiB) in the check's
+    child process: never on the event loop, and a large one never in the API process."""
     import asyncio
 
     real_loads, on_loop = json.loads, []
@@ -234,14 +235,19 @@ def test_json_body_is_parsed_off_the_event_loop(
     def loads(text, *args, **kwargs):
         try:
             asyncio.get_running_loop()
-            on_loop.append(True)
+            on_loop.append((True, len(text)))
         except RuntimeError:  # no event loop in this thread
-            on_loop.append(False)
+            on_loop.append((False, len(text)))
         return real_loads(text, *args, **kwargs)
 
     monkeypatch.setattr(json, "loads", loads)
-    tracks = np.random.default_rng(1).normal(size=(4, 30, 2)).tolist()
-    body = json.dumps({"tracks": tracks, "params": {"max_iter": 5}})
-    answer = admitting.post("/v1/jobs", content=body, headers={"content-type": "application/json"})
-    assert answer.status_code == 202, answer.text
-    assert on_loop == [False]
+    rng = np.random.default_rng(1)
+    small = json.dumps({"tracks": rng.normal(size=(4, 30, 2)).tolist(), "params": {"max_iter": 5}})
+    large = json.dumps({"tracks": rng.normal(size=(4, 8000, 2)).tolist()})
+    assert len(large) > 2**20
+    for body in (small, large):
+        answer = admitting.post(
+            "/v1/jobs", content=body, headers={"content-type": "application/json"}
+        )
+        assert answer.status_code == 202, answer.text[:300]
+    assert on_loop == [(False, len(small))]

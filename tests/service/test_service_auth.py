@@ -189,6 +189,7 @@ def test_keys_never_appear_in_logs(keyed_settings: Settings, tmp_path: Path) -> 
             http.get(f"/v1/jobs/{job['id']}", headers=_as(BOB))  # 404
             http.get("/v1/jobs", headers=_as(WRONG))  # 401
             http.get("/v1/jobs", headers={"X-API-Key": WRONG})
+            http.get("/v1/jobs", params={"api_key": ALICE, "token": BOB})  # 401, and logged
             http.post("/v1/jobs", json={"tracks": [[1]]}, headers=_as(ALICE))  # 422
             http.delete(f"/v1/jobs/{job['id']}", headers=_as(ALICE))
     finally:

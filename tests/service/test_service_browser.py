@@ -12,6 +12,7 @@ one the tests are skipped.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -122,6 +123,27 @@ def coloured_fraction(page) -> float:
     return fraction
 
 
+def assert_viewer_fits(page) -> None:
+    """On first open the convergence plot fits its card: the page does not grow sideways."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    page.wait_for_selector("#viewer-container .moju-convergence .main-svg")
+    with contextlib.suppress(PlaywrightTimeout):  # the assertion below says what is wrong
+        page.wait_for_function(
+            """() => document.documentElement.scrollWidth <= window.innerWidth""", timeout=5000
+        )
+    fit = page.evaluate(
+        """() => {
+            const plot = document.querySelector("#viewer-container .moju-convergence");
+            const svg = plot.querySelector(".main-svg").getBoundingClientRect();
+            const card = document.querySelector("#viewer").getBoundingClientRect();
+            return {page: document.documentElement.scrollWidth, window: window.innerWidth,
+                    svgRight: svg.right, cardRight: card.right};
+        }"""
+    )
+    assert fit["page"] <= fit["window"] and fit["svgRight"] <= fit["cardRight"] + 1, fit
+
+
 def test_submit_follow_and_view_a_job(
     watched: Watched, live_api: str, worker, input_file: Path, tmp_path: Path
 ) -> None:
@@ -133,6 +155,17 @@ def test_submit_follow_and_view_a_job(
     assert page.locator("#readiness").text_content() == "Ready: 1 worker waiting for jobs."
     options = page.locator("#rotations option").evaluate_all("os => os.map(o => o.value)")
     assert options == ["", "auto", "intersection", "windowed", "rigid", "known"]
+    # Every select shows its whole option text (none is cut by a narrow field).
+    cut = page.evaluate(
+        """() => Array.from(document.querySelectorAll("#submit-form select")).flatMap(s => {
+            const shown = s.getBoundingClientRect().width;
+            s.style.width = "max-content";
+            const needed = s.getBoundingClientRect().width;
+            s.style.width = "";
+            return needed > shown + 1 ? [[s.id, shown, needed]] : [];
+        })"""
+    )
+    assert cut == [], cut
 
     # Record every distinct progress text the job list shows while the job runs.
     page.evaluate(
@@ -173,6 +206,8 @@ def test_submit_follow_and_view_a_job(
     seen = page.evaluate("window.seenProgress")
     iterations = {int(m.group(1)) for text in seen if (m := re.search(r"iteration (\d+)", text))}
     assert len(iterations) >= 2, seen
+    # No time left is promised before it can be estimated, nor a meaningless "0.0 s".
+    assert not [text for text in seen if re.search(r"about 0\.0 s left|iteration 1 /.* left", text)]
 
     # Downloads are links to the API's files.
     links = page.locator(f"{row} a.download").evaluate_all("as => as.map(a => a.href)")
@@ -191,6 +226,7 @@ def test_submit_follow_and_view_a_job(
     page.click(f"{row} button.view")
     page.wait_for_selector('#viewer-container[data-rendered-frame="0"]')
     assert page.url.endswith(f"#view={job_id}")
+    assert_viewer_fits(page)
     first = scene_points(page)
     assert first["type"] == "mesh3d"  # the upload had triangles
     assert first["count"] == 300 and first["canvases"] >= 1
@@ -434,6 +470,7 @@ def test_video_upload_through_the_page(
     cv2.imwrite(str(mask), rendered.mask.astype(np.uint8) * 255)
 
     page = watched.page
+    page.set_viewport_size({"width": 1400, "height": 900})
     page.goto(live_api + "/")
     page.wait_for_selector("#method option[value=moju]", state="attached")
     page.set_input_files("#file", str(video))
@@ -474,6 +511,22 @@ def test_video_upload_through_the_page(
         " return [i.naturalWidth, i.naturalHeight]; })()"
     )
     assert size == [width, height]
+    assert_viewer_fits(page)
+    # The first frame may appear only after the plots were drawn at the full width (a slow
+    # image): the plots follow their narrower container.
+    svg = "#viewer-container .moju-convergence .main-svg"
+    narrow = page.evaluate(f"document.querySelector('{svg}').getBoundingClientRect().width")
+    page.evaluate(
+        """() => {
+            document.querySelector("#viewer-frame").hidden = true;
+            window.dispatchEvent(new Event("resize"));  // plotly redraws at the full width
+        }"""
+    )
+    page.wait_for_function(
+        f"document.querySelector('{svg}').getBoundingClientRect().width > {narrow}"
+    )
+    page.evaluate("document.querySelector('#viewer-frame').hidden = false")
+    assert_viewer_fits(page)
     assert watched.console_errors == []
     assert watched.foreign_requests == []
 

@@ -329,6 +329,36 @@ CASES: list[tuple[str, Callable[[], dict], int, tuple[str, ...]]] = [
         ("NaN",),
     ),
     (
+        "coordinates near the float64 limit",
+        lambda: _file(_npz(W=GOOD_W * 1e299)),
+        422,
+        ("as large as", "Rescale"),
+    ),
+    (
+        "a PNG image as the file",
+        lambda: _file(b"\x89PNG\r\n\x1a\n" + b"\x00" * 64, "frame.png"),
+        422,
+        ("PNG image", "video (mp4, webm or avi)", "'mask'"),
+    ),
+    (
+        "an empty file named like a video",
+        lambda: _file(b"", "clip.mp4"),
+        422,
+        ("clip.mp4 is named like a video but is empty",),
+    ),
+    (
+        "binary junk without a CSV name",
+        lambda: _file(b"\x00\x01\xff\xfe" * 20, "upload.bin"),
+        422,
+        ("not valid UTF-8", "video"),
+    ),
+    (
+        "unknown parameter with a very long name",
+        lambda: _file(_npz(W=GOOD_W), params={"x" * 5000: 1}),
+        422,
+        ("unknown parameter", "(5000 characters)"),
+    ),
+    (
         "W with an odd number of rows",
         lambda: _file(_npz(W=GOOD_W[:7])),
         422,
@@ -462,6 +492,28 @@ def test_refused_with_a_message_and_nothing_stored(
         assert word in body["detail"], (word, body["detail"])
     assert list((limited.data_dir / "jobs").iterdir()) == []
     assert redis_client.keys("*") == []  # no record, no queue entry, no slot
+
+
+@pytest.mark.parametrize(
+    "request_of",
+    [
+        pytest.param(lambda: ("GET", "/v1/" + "a" * 60_000, {}), id="60 kB path"),
+        pytest.param(
+            lambda: ("POST", "/v1/jobs", _file(_npz(W=GOOD_W), params={"y" * 5000: 1})),
+            id="5000-character parameter name",
+        ),
+        pytest.param(
+            lambda: ("POST", "/v1/jobs", {"files": {"z" * 5000: ("a", b"1")}}),
+            id="5000-character form field",
+        ),
+    ],
+)
+def test_huge_names_are_not_echoed_whole(guarded, request_of) -> None:
+    client, _ = guarded
+    method, path, options = request_of()
+    response = client.request(method, path, **options)
+    assert 400 <= response.status_code < 500, response.text[:300]
+    assert len(response.json()["detail"]) < 1500, len(response.json()["detail"])
 
 
 def test_the_same_input_is_accepted_when_sound(guarded, redis_client: Redis) -> None:

@@ -123,6 +123,9 @@ def test_video_job_tracks_then_solves_and_serves_the_tracks(
     assert W.shape == (2 * N_FRAMES, tracking["reconstructed"])
     assert tracking["tracks"] == job["input"]["points"] >= tracking["reconstructed"]
     assert tracking["fraction_kept"] == pytest.approx(visibility.mean(), abs=0.1)
+    # The finished job's input says what was solved, not the upload's estimate.
+    assert finished["input"]["points"] == tracking["reconstructed"]
+    assert finished["input"]["observed_fraction"] == pytest.approx(visibility.mean())
     decoded = next(open_video(video_files["video"]).frames())
     start = W[:2].T.astype(np.int64)
     np.testing.assert_array_equal(colors, decoded[start[:, 1], start[:, 0]])
@@ -219,6 +222,7 @@ def test_video_limits_are_named_in_the_refusal(
         ("small", "mask mask.png is 10 x 10 pixels, the video's frames are 96 x 72"),
         ("jpeg", "is not a PNG image"),
         ("empty", "marks no pixel"),
+        ("photo", "marks 100 % of the frame"),
     ],
 )
 def test_bad_masks_are_refused(
@@ -228,6 +232,9 @@ def test_bad_masks_are_refused(
         data = cv2.imencode(".png", np.full((10, 10), 255, np.uint8))[1].tobytes()
     elif mask == "jpeg":
         data = cv2.imencode(".jpg", np.full((72, 96), 255, np.uint8))[1].tobytes()
+    elif mask == "photo":  # an RGB frame, non-zero everywhere, sent as the mask
+        frame = np.random.default_rng(0).integers(1, 256, size=(72, 96, 3), dtype=np.uint8)
+        data = cv2.imencode(".png", frame)[1].tobytes()
     else:
         data = cv2.imencode(".png", np.zeros((72, 96), np.uint8))[1].tobytes()
     response = post(client, video_files["video"].read_bytes(), data)
@@ -272,3 +279,24 @@ def test_video_upload_through_the_api_runs_in_a_real_worker(
             ply = PlyData.read(io.BytesIO(archive.read(names[0])))
         assert len(names) == N_FRAMES
         assert ply["vertex"].count == n_points  # shapes for every track
+
+
+def test_track_overlay_of_a_dense_grid_is_not_a_blob(tmp_path: Path) -> None:
+    """Tracks every 4 pixels: paths are drawn for a spread-out subset, the frame stays visible."""
+    from service.track_overlay import overlay_png
+
+    frame = np.full((120, 160, 3), 128, np.uint8)
+    first_frame = tmp_path / "first.png"
+    cv2.imwrite(str(first_frame), frame)
+    x, y = np.meshgrid(np.arange(8, 152, 4.0), np.arange(8, 112, 4.0))
+    n_frames = 12
+    W = np.vstack([np.vstack([x.ravel() + f, y.ravel() + 0.5 * f]) for f in range(n_frames)])
+    tracks = tmp_path / "tracks.npz"
+    np.savez(tracks, W=W)
+    drawn = cv2.imdecode(np.frombuffer(overlay_png(first_frame, tracks), np.uint8), 1)
+    green = np.all(drawn == [80, 220, 80], axis=2) | (drawn[:, :, 1] > 150)
+    changed = np.any(drawn != frame, axis=2)
+    assert 0 < green.mean() < 0.25, green.mean()
+    assert changed.mean() < 0.5, changed.mean()
+    ends = W[-2:].T.round().astype(int)  # every track still gets its red end dot
+    assert np.all(drawn[ends[:, 1], ends[:, 0]] == [40, 40, 240])
