@@ -7,6 +7,7 @@ be overridden by setting the field.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -178,3 +179,15 @@ def rotation_method(requested: RotationMethod | None, has_rotations: bool) -> Ro
     if requested is not None:
         return requested
     return "known" if has_rotations else "auto"
+
+
+def as_params(params: object) -> SolverParams | None:
+    """``params`` as SolverParams: None stays None, a mapping is validated, others refused."""
+    if params is None or isinstance(params, SolverParams):
+        return params
+    if isinstance(params, Mapping):
+        return SolverParams.model_validate(dict(params))
+    raise TypeError(
+        f"params must be a SolverParams or a mapping such as {{'max_iter': 100}}, not "
+        f"{type(params).__name__}"
+    )

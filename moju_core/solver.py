@@ -24,7 +24,7 @@ from moju_core.errors import Cancelled, MeasurementError
 from moju_core.loop import admm, clustering, lrr
 from moju_core.loop.data_terms import DataTerm, beyond, choose_term
 from moju_core.loop.loop_state import fits_exactly
-from moju_core.params import SolverParams, rotation_method
+from moju_core.params import SolverParams, as_params, rotation_method
 from moju_core.preprocessing import normalise
 from moju_core.priors.signal_fit import signal_fit
 from moju_core.priors.smoothness import choose_smoothness
@@ -38,7 +38,7 @@ from moju_core.result import (
 )
 from moju_core.solve_plan import SolvePlan
 from moju_core.spectrum import Spectrum, noise_variance, significant_rank, spectrum
-from moju_core.validation import check_observations, check_rotations
+from moju_core.validation import check_observations, check_rotations, warn_if_transposed
 
 #: ``callback(progress) -> bool | None``; returning True asks the solver to stop (it then
 #: raises :class:`moju_core.errors.Cancelled`).
@@ -152,39 +152,11 @@ def reconstruct(
     Cancelled
         When the callback asks to stop.
     """
-    params = _as_params(params)
+    params = as_params(params)
     if threads is None:
         return _reconstruct(W, params, rotations, visibility, intrinsics, callback)
     with threadpool_limits(limits=threads):
         return _reconstruct(W, params, rotations, visibility, intrinsics, callback)
-
-
-#: More frames than this many times the points reads like a transposed W (P x 2F): dense
-#: tracks have far more points than frames.
-_TRANSPOSED_RATIO = 10
-
-
-def _as_params(params: object) -> SolverParams | None:
-    """``params`` as SolverParams: None stays None, a mapping is validated, others refused."""
-    if params is None or isinstance(params, SolverParams):
-        return params
-    if isinstance(params, Mapping):
-        return SolverParams.model_validate(dict(params))
-    raise TypeError(
-        f"params must be a SolverParams or a mapping such as {{'max_iter': 100}}, not "
-        f"{type(params).__name__}"
-    )
-
-
-def _warn_if_transposed(n_frames: int, n_points: int) -> None:
-    if n_frames > _TRANSPOSED_RATIO * n_points:
-        warnings.warn(
-            f"W has {2 * n_frames} rows and {n_points} columns, so it is read as {n_frames} "
-            f"frames of {n_points} points; dense tracks have far more points than frames. If "
-            f"the rows are the points (W of shape (P, 2F)), pass W.T",
-            UserWarning,
-            stacklevel=5,
-        )
 
 
 def _reconstruct(
@@ -243,7 +215,7 @@ def _validate(
     submission, :mod:`moju_core.feasibility`)."""
     W, visibility = check_observations(W, visibility)
     n_frames, n_points = W.shape[0] // 2, W.shape[1]
-    _warn_if_transposed(n_frames, n_points)
+    warn_if_transposed(n_frames, n_points)
     if params.rotations == "known":
         if rotations is None:
             raise MeasurementError(

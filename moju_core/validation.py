@@ -28,6 +28,7 @@ __all__ = [
     "check_visibility",
     "solvable_points",
     "tracks_to_W",
+    "warn_if_transposed",
     "with_missing",
 ]
 
@@ -628,3 +629,20 @@ def check_colors(colors: ArrayLike, n_points: int) -> np.ndarray:
             "in 0..255"
         )
     return np.ascontiguousarray(colors, dtype=np.uint8)
+
+
+#: More frames than this many times the points reads like a transposed W (P x 2F): dense
+#: tracks have far more points than frames.
+TRANSPOSED_RATIO = 10
+
+
+def warn_if_transposed(n_frames: int, n_points: int) -> None:
+    """Warn when W's layout reads like a transposed W (P x 2F): far more frames than points."""
+    if n_frames > TRANSPOSED_RATIO * n_points:
+        warnings.warn(
+            f"W has {2 * n_frames} rows and {n_points} columns, so it is read as {n_frames} "
+            f"frames of {n_points} points; dense tracks have far more points than frames. If "
+            f"the rows are the points (W of shape (P, 2F)), pass W.T",
+            UserWarning,
+            stacklevel=5,
+        )
