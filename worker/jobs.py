@@ -219,8 +219,10 @@ def _solve(
             measurements, tracking = _track(record, storage, reporter, settings)
         else:
             measurements = storage.read_input(record.id)
-        # The mask only when points are missing: complete data take the call as before.
+        # The mask only when points are missing, the camera only when the input has one
+        # (K, or a frame size: a video's tracks): other data take the call as before.
         masked = {} if measurements.visibility is None else {"visibility": measurements.visibility}
+        camera = {} if measurements.intrinsics is None else {"intrinsics": measurements.intrinsics}
         result = reconstruct(
             measurements.W,
             record.parameters,
@@ -228,6 +230,7 @@ def _solve(
             callback=reporter,
             threads=settings.worker_threads,
             **masked,
+            **camera,
         )
     for warning in caught:
         logger.warning("job %s: %s", record.id, warning.message)
