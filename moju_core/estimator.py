@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 from sklearn.base import BaseEstimator
 
-from moju_core.params import Grouping, Method, RotationMethod, SolverParams
+from moju_core.cameras.intrinsics import Intrinsics
+from moju_core.params import Grouping, Method, RotationMethod, SolverParams, SurfacePrior
 from moju_core.result import Result
 from moju_core.solver import ProgressCallback, reconstruct
 
@@ -67,6 +68,7 @@ class MoJu(BaseEstimator):
         beta2: float | None = None,
         beta3: float | None = None,
         smoothness: float | None = None,
+        surface_prior: SurfacePrior = "auto",
         free_mean_shape: bool | None = None,
         unshrunk_values: int | None = None,
         trajectory_bases: int | None = None,
@@ -93,6 +95,7 @@ class MoJu(BaseEstimator):
         self.beta2 = beta2
         self.beta3 = beta3
         self.smoothness = smoothness
+        self.surface_prior = surface_prior
         self.free_mean_shape = free_mean_shape
         self.unshrunk_values = unshrunk_values
         self.trajectory_bases = trajectory_bases
@@ -117,6 +120,7 @@ class MoJu(BaseEstimator):
         W: np.ndarray,
         rotations: np.ndarray | None = None,
         visibility: np.ndarray | None = None,
+        intrinsics: Intrinsics | None = None,
     ) -> MoJu:
         """Reconstruct the shapes and cameras of the tracks W.
 
@@ -130,6 +134,9 @@ class MoJu(BaseEstimator):
             (``rotations=None`` or ``"known"``; an estimating method with them is an error).
         visibility : array_like of shape (F, P), bool, optional
             True where a point is observed.
+        intrinsics : Intrinsics, optional
+            The camera of W's pixels: the solve is then perspective (see
+            :func:`moju_core.reconstruct`).
 
         Returns
         -------
@@ -140,6 +147,7 @@ class MoJu(BaseEstimator):
             self.solver_params(),
             rotations=rotations,
             visibility=visibility,
+            intrinsics=intrinsics,
             callback=self.callback,
             threads=self.threads,
         )

@@ -13,6 +13,8 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 Method = Literal["moju", "sdg", "bmm", "pta"]
+#: The surface prior of a solve with a known camera (:mod:`moju_core.perspective`).
+SurfacePrior = Literal["auto", "isometric", "none"]
 RotationMethod = Literal["auto", "intersection", "windowed", "rigid", "plane", "known"]
 Grouping = Literal["adaptive", "fixed"]
 
@@ -104,7 +106,7 @@ class SolverParams(BaseModel):
             "(the paper's loop). Ignored by 'pta'."
         ),
     )
-    surface_prior: Literal["auto", "isometric", "none"] = Field(
+    surface_prior: SurfacePrior = Field(
         "auto",
         description=(
             "The surface prior that gives depth without camera rotation, for tracks with a "

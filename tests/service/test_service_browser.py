@@ -154,7 +154,7 @@ def test_submit_follow_and_view_a_job(
     page.wait_for_function("document.querySelector('#readiness').textContent.startsWith('Ready')")
     assert page.locator("#readiness").text_content() == "Ready: 1 worker waiting for jobs."
     options = page.locator("#rotations option").evaluate_all("os => os.map(o => o.value)")
-    assert options == ["", "auto", "intersection", "windowed", "rigid", "known"]
+    assert options == ["", "auto", "intersection", "windowed", "rigid", "plane", "known"]
     # Every select shows its whole option text (none is cut by a narrow field).
     cut = page.evaluate(
         """() => Array.from(document.querySelectorAll("#submit-form select")).flatMap(s => {
