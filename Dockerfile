@@ -25,4 +25,4 @@ EXPOSE 8000
 
 # The API by default; docker-compose.yml runs the workers from the same image with
 # `moju worker`.
-CMD ["uvicorn", "--factory", "service.app:create_app", "--host", "0.0.0.0", "--port", "8000"]
+CMD ["python", "-m", "service.uvicorn_server", "--host", "0.0.0.0", "--port", "8000"]

@@ -43,6 +43,10 @@ def check_command(command: list[str]) -> None:
         app_reference = next(a for a in arguments if ":" in a and not a.startswith("-"))
         module_name, _, attribute = app_reference.partition(":")
         assert callable(getattr(importlib.import_module(module_name), attribute))
+    elif program == "python":
+        assert arguments[0] == "-m", f"python runs a module here, not {arguments[0]!r}"
+        module = importlib.import_module(arguments[1])
+        assert callable(getattr(module, "main", None)), f"{arguments[1]} has no main()"
     elif program == "redis-server":
         pass  # from the redis image
     else:
