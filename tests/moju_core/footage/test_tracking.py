@@ -378,3 +378,34 @@ def test_write_tracks_stores_a_given_camera_only(paper_tracks, tmp_path):
         read = read_measurements(tmp_path / "focal.npz", short_tracks="drop")
     assert_array_equal(read.intrinsics.K, focal.intrinsics.K)
     assert read.frame_size == SIZE
+
+
+def test_a_decoded_frame_larger_than_the_header_declares_is_refused(monkeypatch, tmp_path):
+    """The size limit is checked on the header, and every decoded frame against the header: a
+    stream whose first header says 96 x 72 and whose later frames are larger stops there."""
+    from moju_core.footage import video as video_module
+
+    sizes = iter([(72, 96), (72, 96), (144, 192)])
+
+    class Capture:
+        def __init__(self, *args):
+            pass
+
+        def read(self):
+            height, width = next(sizes, (0, 0))
+            return height > 0, np.zeros((height, width, 3), np.uint8)
+
+        def release(self):
+            pass
+
+    monkeypatch.setattr(cv2, "VideoCapture", Capture)
+    info = video_module.VideoInfo(
+        path=tmp_path / "grows.mp4",
+        width=96,
+        height=72,
+        n_frames=3,
+        fps=25.0,
+        limits=VideoLimits(),
+    )
+    with pytest.raises(VideoError, match="frame 2 is 192 x 144, the video declares 96 x 72"):
+        list(info.frames())
