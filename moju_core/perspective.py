@@ -120,11 +120,12 @@ def refine_on_prior(
     visibility: np.ndarray,
     params: SolverParams,
     hook: Callable[[int, float, float], bool] | None = None,
-) -> tuple[np.ndarray, admm.LoopOutput, SolverParams]:
+) -> tuple[np.ndarray, admm.LoopOutput, SolverParams, float]:
     """The MoJu loop in the camera frame, anchored to the prior's shapes (F, P, 3).
 
-    Returns the refined shapes (F, P, 3) in the prior's frame and units, the loop's output
-    and the resolved parameters.
+    Returns the refined shapes (F, P, 3) in the prior's frame and units, the loop's output,
+    the resolved parameters and the noise variance of the loop's tracks (relative to their
+    mean square).
     """
     n_frames, n_points, _ = prior.shape
     centroid = prior.mean(axis=1, keepdims=True)
@@ -138,13 +139,14 @@ def refine_on_prior(
     top = lrr.top_singular_value(centred.reshape(n_frames, 3 * n_points))
     if params.smoothness is None:
         params = params.model_copy(update={"smoothness": 0.0})
+    noise = noise_variance(singular, flat_tracks.shape)
     params = defaults.resolve(
         params,
         n_frames,
         n_points,
         top,
         rotations=rotations,
-        noise=noise_variance(singular, flat_tracks.shape),
+        noise=noise,
         signal_rank=significant_rank(singular, flat_tracks.shape),
     )
     observed = None if visibility.all() else visibility
@@ -153,4 +155,4 @@ def refine_on_prior(
     )
     out = admm.run(tracks, admm.LoopCameras(rotations), params, term, hook=hook)
     shapes = out.shapes.transpose(0, 2, 1) * scale + centroid
-    return shapes, out, params
+    return shapes, out, params, float(noise)

@@ -9,8 +9,8 @@ temporal prior's weight), how the loop fits them. Those decisions are taken in o
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
-from typing import Any, Literal
+from dataclasses import dataclass, fields
+from typing import Literal
 
 from moju_core.defaults import EXACT_DATA_NOISE, MIN_DEPTH_PRIOR
 
@@ -72,10 +72,6 @@ class SolvePlan:
 
     def __str__(self) -> str:
         return "\n".join(f"{field.name}: {getattr(self, field.name)}" for field in fields(self))
-
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict."""
-        return asdict(self)
 
 
 def exact_data(noise: float, completion: Completion, camera_source: str) -> bool:

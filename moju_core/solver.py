@@ -588,7 +588,7 @@ def _perspective_reconstruct(
         return False
 
     tic = time.perf_counter()
-    shapes, out, params = perspective.refine_on_prior(prior, visibility, params, hook)
+    shapes, out, params, noise = perspective.refine_on_prior(prior, visibility, params, hook)
     timings["iterate"] = time.perf_counter() - tic
     report("finishing", out.n_iter)
     timings["total"] = time.perf_counter() - start
@@ -598,7 +598,7 @@ def _perspective_reconstruct(
         n_frames=n_frames,
         n_points=n_points,
         observed_fraction=float(visibility.mean()),
-        noise=0.0,
+        noise=noise,
         completion="none" if visibility.all() else "approximate",
         camera_source="known",
         refine_rotations=False,
