@@ -14,6 +14,8 @@ from typing import Any
 
 import click
 
+from moju_cli.camera_options import camera_choice, intrinsics_options
+
 
 def _configure_logging() -> None:
     from service.log_setup import configure_logging
@@ -239,6 +241,7 @@ class _ProgressBar:
         "object to track."
     ),
 )
+@intrinsics_options
 @click.option("--wait", is_flag=True, help="Follow the job until it ends.")
 @click.option(
     "-o",
@@ -254,21 +257,30 @@ def submit(
     param: tuple[str, ...],
     params_json: Path | None,
     mask: Path | None,
+    intrinsics_file: Path | None,
+    focal: float | None,
     wait: bool,
     output: Path | None,
 ) -> None:
     """Upload INPUT (npz, HDF5 or CSV tracks, or a video: mp4, webm or avi, tracked by the
-    service first) to a MoJu service as a job."""
+    service first) to a MoJu service as a job.
+
+    The camera: --focal PIXELS or --intrinsics FILE, as for moju track and moju reconstruct
+    (checked before anything is uploaded); given, it replaces the K of a tracks file.
+    """
     from moju_cli.stop_reasons import describe_stop
     from service.client import MojuClient, MojuError
 
     if output is not None and output.suffix.lower() not in (".npz", ".h5", ".hdf5"):
         raise click.BadParameter("use the extension .npz, .h5 or .hdf5", param_hint="-o")
     params = _collect_params(param, params_json)
+    camera_choice(intrinsics_file, focal)  # both given, or a file that is no K: refused here
     job = None
     with MojuClient(server, api_key=api_key) as client:
         try:
-            job = client.submit(input_file, params or None, mask=mask)
+            job = client.submit(
+                input_file, params or None, mask=mask, focal=focal, intrinsics=intrinsics_file
+            )
             click.echo(f"job {job.id} {job.status.value} ({job.input.frames} frames x "
                        f"{job.input.points} points)")  # fmt: skip
             if not (wait or output):

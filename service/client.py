@@ -105,6 +105,17 @@ def _params_json(params: ParamsLike) -> str | None:
     return json.dumps(dict(params))
 
 
+def _form_fields(params: ParamsLike, focal: float | None) -> dict[str, str]:
+    """The text fields of an upload: 'params' and 'focal' when given."""
+    data = {}
+    params_text = _params_json(params)
+    if params_text is not None:
+        data["params"] = params_text
+    if focal is not None:
+        data["focal"] = repr(float(focal))
+    return data
+
+
 def _ended(job: JobResource) -> JobResource:
     """Return a finished job; raise for a failed or cancelled one."""
     if job.status is JobStatus.FAILED:
@@ -174,6 +185,8 @@ class MojuClient:
         *,
         filename: str | None = None,
         mask: str | Path | None = None,
+        focal: float | None = None,
+        intrinsics: str | Path | None = None,
     ) -> JobResource:
         """Upload a measurement file (npz, HDF5 or CSV) or a video, and queue a job.
 
@@ -188,11 +201,16 @@ class MojuClient:
             extension as a format hint only.
         mask : path, optional
             With a video: PNG of the first frame's size marking the object to track.
+        focal : float, optional
+            The camera's focal length in pixels, with the principal point at the image
+            centre (sent as the 'focal' field). Not with ``intrinsics``.
+        intrinsics : path, optional
+            Text file holding the camera matrix K in pixels, three lines of three numbers
+            (sent as the 'intrinsics' part). Without either, a video gets the default camera
+            of its frame size and a tracks file its own K (the server replaces it with the
+            one given here).
         """
-        data = {}
-        params_text = _params_json(params)
-        if params_text is not None:
-            data["params"] = params_text
+        data = _form_fields(params, focal)
         with contextlib.ExitStack() as stack:
             if isinstance(source, (str, Path)):
                 path = Path(source)
@@ -204,6 +222,10 @@ class MojuClient:
                 mask_path = Path(mask)
                 files["mask"] = (mask_path.name, stack.enter_context(open(mask_path, "rb")),
                                  "image/png")  # fmt: skip
+            if intrinsics is not None:
+                k_path = Path(intrinsics)
+                files["intrinsics"] = (k_path.name, stack.enter_context(open(k_path, "rb")),
+                                       "text/plain")  # fmt: skip
             response = self._request("POST", "/v1/jobs", files=files, data=data)
         return JobResource.model_validate_json(response.content)
 

@@ -25,8 +25,9 @@ from moju_core.errors import MeasurementError, MeasurementTooLarge
 from moju_core.io import Measurements, read_measurements, write_measurements
 from moju_core.params import SolverParams
 from moju_core.validation import tracks_to_W
+from service.camera_fields import CameraRequest, apply_camera
 from service.errors import InvalidInput
-from service.schemas import TracksBody
+from service.schemas import CameraSummary, TracksBody
 from service.settings import WORKER_MEMORY_SETTING
 from service.validation_messages import describe_errors
 
@@ -53,7 +54,9 @@ class InputCheck:
     """One upload to check, as the API hands it to the child.
 
     ``source`` is the upload on disk (the file part, or the JSON body); ``target`` is where
-    the normalised input goes (``input.npz`` layout of :func:`moju_core.io.write_measurements`).
+    the normalised input goes (``input.npz`` layout of :func:`moju_core.io.write_measurements`);
+    ``camera`` is the camera of the form's ``focal`` or ``intrinsics`` field, which replaces
+    the file's K (:mod:`service.camera_fields`).
     """
 
     source: Path
@@ -62,6 +65,7 @@ class InputCheck:
     max_points: int
     max_frames: int
     worker_memory_bytes: int
+    camera: CameraRequest | None = None
 
 
 @dataclass(frozen=True)
@@ -77,6 +81,8 @@ class CheckedInput:
     observed_fraction: float
     #: The parameters of a JSON body (None: none given, or a file upload).
     params: SolverParams | None = None
+    #: The camera the input carries once the form's is applied (None: orthographic tracks).
+    camera: CameraSummary | None = None
 
 
 def admit(n_frames: int, n_points: int, *, limit: int) -> None:
@@ -182,6 +188,7 @@ def check_input(check: InputCheck) -> CheckedInput:
     else:
         measurements = _file_input(check)
     check_magnitude(measurements)
+    camera = apply_camera(check.camera, measurements, "the uploaded file")
     write_measurements(check.target, measurements)
     return CheckedInput(
         n_frames=measurements.n_frames,
@@ -192,4 +199,5 @@ def check_input(check: InputCheck) -> CheckedInput:
         has_colors=measurements.colors is not None,
         observed_fraction=measurements.observed_fraction,
         params=params,
+        camera=camera,
     )

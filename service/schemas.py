@@ -51,6 +51,30 @@ class TrackingSummary(BaseModel):
     seconds: float = Field(description="Time the tracking took.", examples=[3.2])
 
 
+class CameraSummary(BaseModel):
+    """The camera of the job's pixel tracks (docs/cameras.md) and where it came from."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    K: list[list[float]] = Field(
+        description=(
+            "The 3 x 3 camera matrix in pixels, [[fx, s, cx], [0, fy, cy], [0, 0, 1]]; "
+            "pixel centres at integers, so the image centre is ((width - 1) / 2, "
+            "(height - 1) / 2)."
+        ),
+        examples=[[[115.2, 0.0, 47.5], [0.0, 115.2, 35.5], [0.0, 0.0, 1.0]]],
+    )
+    source: Literal["focal", "intrinsics", "file", "default"] = Field(
+        description=(
+            "Where K came from: the 'focal' form field (principal point at the image "
+            "centre), the 'intrinsics' form field, the K of the uploaded tracks file, or the "
+            "default camera of the frame size (focal length 1.2 x the larger side, principal "
+            "point at the image centre)."
+        ),
+        examples=["focal"],
+    )
+
+
 class InputSummary(BaseModel):
     """What the API found in the upload, after validation."""
 
@@ -96,6 +120,14 @@ class InputSummary(BaseModel):
         examples=[0.85],
     )
     video: VideoSummary | None = Field(None, description="For a video upload: what it holds.")
+    camera: CameraSummary | None = Field(
+        None,
+        description=(
+            "The camera the job solves with (K in pixels): always for a video; for tracks "
+            "when the form gave one or the file has K or a frame_size. Null: tracks without "
+            "a camera, solved as orthographic."
+        ),
+    )
 
 
 class ProgressReport(BaseModel):

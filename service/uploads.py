@@ -32,6 +32,7 @@ from starlette.requests import Request
 from moju_core import feasibility, file_types
 from moju_core.errors import MeasurementError, MeasurementTooLarge
 from moju_core.params import SolverParams, rotation_method
+from service.camera_fields import CAMERA_FIELDS, CameraRequest, read_camera_fields
 from service.check_process import run_check, run_here
 from service.errors import BodyTimeout, InvalidInput, UnsupportedMediaType, UploadTooLarge
 from service.input_check import (
@@ -49,7 +50,7 @@ from service.validation_messages import describe_errors, shorten
 from service.video_uploads import StagedVideo, stage_video, video_extension
 
 _FILE_FORMATS = {".npz": "npz", ".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv"}
-_FORM_FIELDS = ("file", "params", "mask")
+_FORM_FIELDS = ("file", "params", "mask", *CAMERA_FIELDS)
 #: Longest 'params' part read when it comes as a file (every parameter fits in a few hundred).
 MAX_PARAMS_BYTES = 65536
 _TOO_DEEP = TOO_DEEP
@@ -249,10 +250,14 @@ def _copy_upload(upload: UploadFile, target: Path) -> None:
 
 
 async def _check(
-    source: Path, kind: InputKind, settings: Settings, limiter: anyio.CapacityLimiter
+    source: Path,
+    kind: InputKind,
+    settings: Settings,
+    limiter: anyio.CapacityLimiter,
+    camera: CameraRequest | None = None,
 ) -> tuple[CheckedInput, Path]:
-    """Check ``source`` in a child process, at most ``limiter`` at once; return what it found
-    and the normalised input it wrote next to ``source``."""
+    """Check ``source`` in a child process, at most ``limiter`` at once, giving it the form's
+    ``camera``; return what it found and the normalised input it wrote next to ``source``."""
     check = InputCheck(
         source=source,
         kind=kind,
@@ -260,6 +265,7 @@ async def _check(
         max_points=settings.max_points,
         max_frames=settings.max_frames,
         worker_memory_bytes=settings.worker_memory_bytes,
+        camera=camera,
     )
     if _known_small(source, kind):
         # Its arrays are small whatever it holds: a child process would only add its start.
@@ -301,15 +307,19 @@ def _known_small(source: Path, kind: InputKind) -> bool:
 
 
 async def _checked_file(
-    upload: UploadFile, settings: Settings, limiter: anyio.CapacityLimiter
+    upload: UploadFile,
+    settings: Settings,
+    limiter: anyio.CapacityLimiter,
+    camera: CameraRequest | None,
 ) -> tuple[CheckedInput, Path, str]:
-    """Stage the uploaded file and check it: what was found, the normalised input, the format."""
+    """Stage the uploaded file and check it (with the form's camera): what was found, the
+    normalised input, the format."""
     file_format = _file_format(upload)
     directory = _staging_directory()
     try:
         source = directory / "upload"
         await anyio.to_thread.run_sync(_copy_upload, upload, source)
-        checked, staged = await _check(source, file_format, settings, limiter)  # type: ignore[arg-type]
+        checked, staged = await _check(source, file_format, settings, limiter, camera)  # type: ignore[arg-type]
         source.unlink()
     except BaseException:
         shutil.rmtree(directory, ignore_errors=True)
@@ -323,10 +333,11 @@ async def _from_multipart(
     parser = MultiPartParser(
         request.headers,
         _limited_stream(request, settings.max_upload_bytes, timeout=settings.body_timeout),
-        # 'file', 'mask', plus 'params' sent as a file part (curl -F params=@p.json).
-        max_files=3,
-        # 'params', plus room for a 'file' sent as text so that it gets a clear message.
-        max_fields=2,
+        # 'file', 'mask', 'intrinsics', plus 'params' sent as a file part (-F params=@p.json).
+        max_files=4,
+        # 'params', 'focal', 'intrinsics' as text, plus room for a 'file' sent as text so
+        # that it gets a clear message.
+        max_fields=4,
     )
     try:
         form = await parser.parse()
@@ -358,17 +369,20 @@ async def _from_multipart(
                 )
             params_field = text.decode("utf-8", errors="replace")
         params = _params_from_form(params_field)
+        camera = await read_camera_fields(form)
         filename = _display_name(upload.filename)
         extension = video_extension(upload)
         mask = form.get("mask")
         if extension is not None:
-            return await _video_submission(upload, mask, extension, filename, params, settings)
+            return await _video_submission(
+                upload, mask, extension, filename, params, settings, camera
+            )
         if mask is not None:
             raise InvalidInput(
                 "a 'mask' goes with a video upload only (mp4, webm or avi in 'file'); the "
                 "'file' is not a video"
             )
-        checked, staged, file_format = await _checked_file(upload, settings, limiter)
+        checked, staged, file_format = await _checked_file(upload, settings, limiter, camera)
         size = upload.size or 0
     finally:
         await form.close()
@@ -382,7 +396,10 @@ async def _video_submission(
     filename: str | None,
     params: SolverParams,
     settings: Settings,
+    camera: CameraRequest | None,
 ) -> Submission:
+    """The submission of a video: staged and checked, with its camera (the form's, else the
+    default of its frame size)."""
     if mask is not None and not isinstance(mask, UploadFile):
         raise InvalidInput("the 'mask' field must be a PNG file upload (curl: -F mask=@mask.png)")
     if params.rotations == "known":
@@ -392,7 +409,7 @@ async def _video_submission(
         )
     params = params.model_copy(update={"rotations": rotation_method(params.rotations, False)})
     staged = await anyio.to_thread.run_sync(
-        stage_video, upload, mask, extension, filename, settings
+        stage_video, upload, mask, extension, filename, settings, camera
     )
     try:
         check_params_fit(params, staged.summary.frames, staged.summary.points, has_rotations=False)
@@ -487,6 +504,7 @@ def _fitted_submission(
         has_faces=checked.has_faces,
         has_colors=checked.has_colors,
         observed_fraction=checked.observed_fraction,
+        camera=checked.camera,
     )
     return Submission(staged_input=staged, params=params, summary=summary)
 

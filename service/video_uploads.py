@@ -11,7 +11,9 @@ there before a job exists:
   ``MOJU_MAX_VIDEO_SECONDS`` (:class:`moju_core.footage.video.VideoLimits`; 413 naming the limit);
 * the first two frames are decoded (a file that is no video, or holds one frame, is 422) and
   the first one is kept as PNG, for the web page;
-* the mask's size against the frames', and its grid points against ``MOJU_MAX_POINTS``.
+* the mask's size against the frames', and its grid points against ``MOJU_MAX_POINTS``;
+* the camera: the form's ``focal`` (principal point at the image centre) or ``intrinsics``,
+  else the default camera of the frame size (:mod:`service.camera_fields`).
 
 The tracking itself runs in the worker (:mod:`worker.jobs`); a video that turns out to be
 truncated further on fails the job there with the tracker's message.
@@ -32,6 +34,7 @@ from moju_core.errors import VideoError, VideoTooLarge
 from moju_core.feasibility import describe_bytes
 from moju_core.footage.tracking import DEFAULT_STEP, count_grid_points
 from moju_core.footage.video import VideoInfo, check_clip, open_video, read_mask
+from service.camera_fields import CameraRequest, video_camera
 from service.schemas import InputSummary, VideoSummary
 from service.settings import Settings
 
@@ -163,15 +166,17 @@ def stage_video(
     extension: str,
     filename: str | None,
     settings: Settings,
+    camera: CameraRequest | None = None,
 ) -> StagedVideo:
-    """Copy and check an uploaded video (blocking: run in a worker thread).
+    """Copy and check an uploaded video (blocking: run in a worker thread); ``camera`` is the
+    form's (None: the default camera of the frame size).
 
     Raises VideoTooLarge (413) for a limit and VideoError (422) for anything unusable;
     nothing is left behind then.
     """
     directory = Path(tempfile.mkdtemp(prefix="moju-video-"))
     try:
-        return _stage(directory, upload, mask, extension, filename, settings)
+        return _stage(directory, upload, mask, extension, filename, settings, camera)
     except VideoTooLarge as exc:
         shutil.rmtree(directory, ignore_errors=True)
         # The tracker's advice names moju track's options, which an upload does not have.
@@ -191,6 +196,7 @@ def _stage(
     extension: str,
     filename: str | None,
     settings: Settings,
+    camera: CameraRequest | None,
 ) -> StagedVideo:
     limits = settings.video_limits
     video = directory / f"video{extension}"
@@ -230,5 +236,6 @@ def _stage(
             has_mask=mask is not None,
             step=DEFAULT_STEP,
         ),
+        camera=video_camera(camera, (info.width, info.height)),
     )
     return StagedVideo(directory, video, mask_path, first_frame, summary)

@@ -5,7 +5,12 @@ Outcomes and what the user reads in the job's ``error``:
 * solver finished: status ``finished``, result in ``<data_dir>/jobs/<id>/result.h5``;
 * a video job runs a tracking stage first (progress stage ``tracking``, one report per
   frame at most every 0.5 s): its tracks go to ``tracks.npz`` and, as solver input, to
-  ``input.npz``; a video the tracker cannot use fails the job with the tracker's message;
+  ``input.npz``, with the camera of the job's ``focal`` or ``intrinsics`` field (K, as
+  ``moju track --focal`` / ``--intrinsics`` stores it; without one the default camera of the
+  frame size applies); a video the tracker cannot use fails the job with the tracker's
+  message;
+* the camera the solve used (if any) is recorded in the result's metadata (``intrinsics``:
+  K and its origin, as ``moju reconstruct`` records it);
 * the input cannot be used (:class:`moju_core.errors.MeasurementError`): ``failed`` with the
   solver's message verbatim;
 * time limit (``MOJU_JOB_TIMEOUT``) exceeded: ``failed`` with "timed out: ..." and the limit;
@@ -19,6 +24,7 @@ Outcomes and what the user reads in the job's ``error``:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -35,6 +41,7 @@ from rq.timeouts import JobTimeoutException
 from threadpoolctl import threadpool_limits
 
 from moju_core import feasibility
+from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.errors import Cancelled, MeasurementError
 from moju_core.footage.tracking import (
     DEFAULT_STEP,
@@ -160,10 +167,23 @@ def _tracking_callback(reporter: ProgressReporter, n_frames: int, started: float
     return report
 
 
+def _form_camera(record: JobRecord, frame_size: tuple[int, int]) -> Intrinsics | None:
+    """The camera the job's form gave for its video, for frames of ``frame_size``; None
+    without one (the tracks then carry no K and readers take the default of their frame
+    size, as with ``moju track`` without --focal)."""
+    camera = record.input.camera
+    if camera is None or camera.source == "default":
+        return None
+    if camera.source == "focal":
+        return Intrinsics.from_focal(camera.K[0][0], frame_size)
+    return Intrinsics(np.array(camera.K), "given")
+
+
 def _track(
     record: JobRecord, storage: Storage, reporter: ProgressReporter, settings: Settings
 ) -> tuple[Measurements, dict[str, Any]]:
-    """The tracking stage of a video job: tracks stored, returned as solver input."""
+    """The tracking stage of a video job: tracks stored with the job's camera, returned as
+    solver input."""
     import cv2  # the tracker's; only video jobs need it
 
     # OpenCV's own thread pool is outside threadpoolctl's reach: MOJU_WORKER_THREADS too.
@@ -179,6 +199,9 @@ def _track(
         callback=_tracking_callback(reporter, record.input.frames, started),
     )
     seconds = time.perf_counter() - started
+    camera = _form_camera(record, tracks.frame_size)
+    if camera is not None:
+        tracks = dataclasses.replace(tracks, intrinsics=camera)
     kept = solvable_tracks(tracks)
     storage.write_tracks(record.id, kept)
     measurements = tracks_measurements(kept)
@@ -202,7 +225,9 @@ def _track(
 
 def _solve(
     record: JobRecord, storage: Storage, reporter: ProgressReporter, settings: Settings
-) -> tuple[Result, list[warnings.WarningMessage], dict[str, Any] | None]:
+) -> tuple[Result, list[warnings.WarningMessage], dict[str, Any] | None, Intrinsics | None]:
+    """Track (a video job) and solve; the result, the warnings, the tracking summary and the
+    camera the solve used."""
     from moju_core import reconstruct  # the solver loads scikit-learn; only workers need it
 
     # BLAS/OpenMP threads per process (MOJU_WORKER_THREADS) for the tracker here, and for the
@@ -234,7 +259,7 @@ def _solve(
         )
     for warning in caught:
         logger.warning("job %s: %s", record.id, warning.message)
-    return result, caught, tracking
+    return result, caught, tracking, measurements.intrinsics
 
 
 def _known_rotations(record: JobRecord, uploaded: np.ndarray | None) -> np.ndarray | None:
@@ -335,12 +360,11 @@ def _run_attempt(
     patience = settings.heartbeat_ttl
     started = time.monotonic()
     try:
-        result, caught, tracking = _solve(record, storage, reporter, settings)
-        storage.write_result(
-            job_id,
-            result,
-            metadata={"job_id": str(job_id), "input": record.input.model_dump(mode="json")},
-        )
+        result, caught, tracking, camera = _solve(record, storage, reporter, settings)
+        metadata = {"job_id": str(job_id), "input": record.input.model_dump(mode="json")}
+        if camera is not None:
+            metadata["intrinsics"] = camera.to_metadata()
+        storage.write_result(job_id, result, metadata=metadata)
     except Cancelled:
         # Only a user's cancel ends the job here; a job queued again or failed by the
         # watchdog (or deleted) was taken from this attempt, which records nothing.
