@@ -192,11 +192,37 @@ _SUBMIT_BODY: dict[str, Any] = {
                             "description": "Solver parameters as a JSON object (SolverParams).",
                             "example": '{"max_iter": 100, "seed": 1}',
                         },
+                        "focal": {
+                            "type": "string",
+                            "description": (
+                                "The camera's focal length in pixels (a positive number), "
+                                "with the principal point at the image centre ((width - 1) "
+                                "/ 2, (height - 1) / 2): needs the frame size, a video's or "
+                                "the frame_size of a tracks file. Not with 'intrinsics'. "
+                                "Without either, a video gets the default camera (focal "
+                                "length 1.2 x the larger image side) and a tracks file keeps "
+                                "its own K."
+                            ),
+                            "example": "800",
+                        },
+                        "intrinsics": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": (
+                                "The camera matrix K in pixels as text (a file or a text "
+                                "field, at most 64 KiB): three lines of three numbers "
+                                "separated by commas or spaces, upper triangular with last "
+                                "row 0, 0, 1 and positive focal lengths; lines starting "
+                                "with # are skipped. Replaces the K of a tracks file. Not "
+                                "with 'focal'."
+                            ),
+                        },
                     },
                 },
                 "encoding": {
                     "file": {"contentType": "application/octet-stream"},
                     "mask": {"contentType": "image/png"},
+                    "intrinsics": {"contentType": "text/plain"},
                 },
             },
             "application/json": {
@@ -230,6 +256,8 @@ _SUBMIT_BODY: dict[str, Any] = {
         "missing CSV rows, or [null, null] in JSON tracks): the job's `input.observed_fraction` "
         "says how much was observed, and the result holds every point in every frame. "
         "Answers 202 with the job resource and a `Location` header naming it.\n\n"
+        "The optional fields `focal` (pixels) or `intrinsics` (the 3 x 3 matrix K as text) "
+        "give the camera; the job's `input.camera` shows the K it solves with.\n\n"
         "curl example:\n\n"
         "    curl -F file=@face_small.npz -F 'params={\"max_iter\": 100}' "
         "http://127.0.0.1:8000/v1/jobs"

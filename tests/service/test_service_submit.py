@@ -55,6 +55,7 @@ def test_npz_upload_is_accepted_stored_and_queued(
         "has_colors": True,
         "observed_fraction": 1.0,
         "video": None,
+        "camera": None,  # no K, no frame size: orthographic tracks
     }
     assert job["started_at"] is None and job["progress"] is None and job["error"] is None
     assert job["links"]["metrics"] == f"/v1/jobs/{job['id']}/metrics"

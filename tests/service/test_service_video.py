@@ -120,6 +120,8 @@ def test_video_job_tracks_then_solves_and_serves_the_tracks(
     with np.load(io.BytesIO(tracks.content), allow_pickle=False) as data:
         W, visibility, colors = data["W"], data["visibility"], data["colors"]
         assert list(data["frame_size"]) == list(SIZE)
+        assert "K" not in data  # no camera given: the default of the frame size, not stored
+    assert finished["input"]["camera"]["source"] == "default"
     assert W.shape == (2 * N_FRAMES, tracking["reconstructed"])
     assert tracking["tracks"] == job["input"]["points"] >= tracking["reconstructed"]
     assert tracking["fraction_kept"] == pytest.approx(visibility.mean(), abs=0.1)
