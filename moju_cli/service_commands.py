@@ -210,6 +210,24 @@ class _ProgressBar:
         self.bar.close()
 
 
+#: How ``moju submit`` names where the job's camera came from.
+_CAMERA_SOURCES = {
+    "focal": "from --focal",
+    "intrinsics": "from --intrinsics",
+    "file": "K of the input",
+    "default": "default: 1.2 x the larger image side; give --focal or --intrinsics",
+}
+
+
+def _camera_line(K: list[list[float]], source: str) -> str:
+    """One line: the camera the job solves with, as ``moju reconstruct`` prints it."""
+    (fx, _, cx), (_, fy, cy), _ = K
+    return (
+        f"camera: focal {fx:g} x {fy:g} px, principal point ({cx:g}, {cy:g}) "
+        f"({_CAMERA_SOURCES.get(source, source)})"
+    )
+
+
 @click.command("submit")
 @click.argument("input_file", metavar="INPUT", type=click.Path(exists=True, dir_okay=False))
 @click.option(
@@ -283,6 +301,8 @@ def submit(
             )
             click.echo(f"job {job.id} {job.status.value} ({job.input.frames} frames x "
                        f"{job.input.points} points)")  # fmt: skip
+            if job.input.camera is not None:
+                click.echo(_camera_line(job.input.camera.K, job.input.camera.source))
             if not (wait or output):
                 click.echo(f"follow it: {server.rstrip('/')}/v1/jobs/{job.id}")
                 return

@@ -421,3 +421,48 @@ def test_submit_sends_a_mask(redis_url: str, tmp_path: Path) -> None:
         answer = CliRunner().invoke(submit, [str(path), "--server", url, "--mask", str(mask)])
     assert answer.exit_code == 1
     assert "a 'mask' goes with a video upload only" in answer.output
+
+
+def test_submit_sends_the_camera(redis_url: str, tmp_path: Path) -> None:
+    """--focal and --intrinsics go to the server as the 'focal' and 'intrinsics' fields; both
+    together, or a file that is no K, are refused before anything is uploaded."""
+    from service.client import MojuClient
+    from service.settings import Settings
+
+    settings = Settings(redis_url=redis_url, data_dir=tmp_path / "data", cleanup_interval=0)
+    W = make_sequence("face1", n_points=50).W * 100 + 300  # pixels of a 640 x 480 frame
+    path = write_measurements(tmp_path / "w.npz", Measurements(W=W, frame_size=(640, 480)))
+    k_file = tmp_path / "K.txt"
+    k_file.write_text("500, 0, 320\n0, 510, 240\n0, 0, 1\n")
+    with serving(settings) as url:
+        focal = CliRunner().invoke(submit, [str(path), "--server", url, "--focal", "800"])
+        given = CliRunner().invoke(
+            submit, [str(path), "--server", url, "--intrinsics", str(k_file)]
+        )
+        with MojuClient(url) as client:
+            cameras = [job.input.camera for job in client.list_jobs().items]
+    assert focal.exit_code == 0, focal.output
+    assert "camera: focal 800 x 800 px, principal point (319.5, 239.5) (from --focal)" in (
+        focal.output
+    )
+    assert given.exit_code == 0, given.output
+    assert "camera: focal 500 x 510 px, principal point (320, 240) (from --intrinsics)" in (
+        given.output
+    )
+    assert [(camera.source, camera.K[0][0], camera.K[1][2]) for camera in cameras] == [
+        ("intrinsics", 500.0, 240.0),  # newest first
+        ("focal", 800.0, 239.5),
+    ]
+
+    unreachable = "http://127.0.0.1:9"
+    both = CliRunner().invoke(
+        submit, [str(path), "--server", unreachable, "--focal", "800", "--intrinsics", str(k_file)]
+    )
+    assert both.exit_code == 2
+    assert "--intrinsics and --focal both give the camera" in both.output
+    k_file.write_text("500, 0, 320\n0, 510, 240\n")
+    bad = CliRunner().invoke(
+        submit, [str(path), "--server", unreachable, "--intrinsics", str(k_file)]
+    )
+    assert bad.exit_code == 1
+    assert "--intrinsics: K.txt holds 2 row(s)" in bad.output
