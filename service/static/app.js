@@ -226,6 +226,15 @@
     if (mask) {
       body.append("mask", mask, mask.name);
     }
+    // The camera: the API refuses both together, with a message that says so.
+    const focal = $("#focal").value.trim();
+    if (focal !== "") {
+      body.append("focal", focal);
+    }
+    const intrinsics = $("#intrinsics").files[0];
+    if (intrinsics) {
+      body.append("intrinsics", intrinsics, intrinsics.name);
+    }
     try {
       body.append("params", JSON.stringify(formParameters()));
     } catch (error) {
@@ -358,6 +367,15 @@
       // Points missing from the upload: the solver fills them in.
       const text = `${(100 * observed).toFixed(1)} % observed`;
       size.append(element("div", { class: "muted observed" }, text));
+    }
+    const camera = job.input.camera;
+    if (camera) {
+      // The camera the job solves with: its focal length and where it came from.
+      const [fx, fy] = [camera.K[0][0], camera.K[1][1]].map((f) => Number(f.toPrecision(6)));
+      const focal = fx === fy ? `${fx} px` : `${fx} \u00d7 ${fy} px`;
+      const title = `K = ${JSON.stringify(camera.K)}`;
+      const text = `focal ${focal} (${camera.source})`;
+      size.append(element("div", { class: "muted camera", title }, text));
     }
     const status = element("td", {});
     status.append(element("span", { class: `badge status-${job.status}` }, job.status));

@@ -475,6 +475,7 @@ def test_video_upload_through_the_page(
     page.wait_for_selector("#method option[value=moju]", state="attached")
     page.set_input_files("#file", str(video))
     page.set_input_files("#mask", str(mask))
+    page.fill("#focal", "150")
     page.fill("#max_iter", "5")
     page.click("#submit-button")
     page.wait_for_selector("#submit-status:has-text('submitted job')")
@@ -485,6 +486,8 @@ def test_video_upload_through_the_page(
     job = httpx.get(f"{live_api}/v1/jobs/{job_id}").json()
     assert job["input"]["format"] == "video" and job["input"]["video"]["has_mask"] is True
     assert job["parameters"]["max_iter"] == 5
+    assert job["input"]["camera"]["source"] == "focal" and job["input"]["camera"]["K"][0][0] == 150
+    assert "focal 150 px (focal)" in page.locator(f"{row} .camera").text_content()
     links = page.locator(f"{row} a.download").evaluate_all("as => as.map(a => a.href)")
     assert f"{live_api}/v1/jobs/{job_id}/tracks.npz" in links
     tracks = httpx.get(f"{live_api}/v1/jobs/{job_id}/tracks.npz")

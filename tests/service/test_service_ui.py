@@ -18,6 +18,7 @@ from numpy.testing import assert_allclose
 from plotly.offline import get_plotlyjs
 
 from moju_core.io import read_result
+from service.camera_fields import CAMERA_FIELDS
 from service.routes.viewer import PAGE_FILES, STATIC_DIR, page_file
 from service.settings import Settings
 from worker.jobs import execute
@@ -82,6 +83,22 @@ def test_page_refers_to_nothing_outside_the_service() -> None:
     index = (STATIC_DIR / "index.html").read_text()
     scripts = re.findall(r'<script src="([^"]+)"', index)
     assert scripts == ["/static/plotly.min.js", "/static/viewer.js", "/static/app.js"]
+
+
+def test_the_form_sends_the_camera_fields() -> None:
+    """The submit form has the optional camera inputs, and its script sends them under the
+    API's field names, only when filled in (the API refuses both together)."""
+    index = (STATIC_DIR / "index.html").read_text()
+    assert '<input id="focal" name="focal" type="number" min="0" step="any"' in index
+    assert '<input id="intrinsics" name="intrinsics" type="file"' in index
+    script = (STATIC_DIR / "app.js").read_text()
+    for name in CAMERA_FIELDS:
+        assert f'$("#{name}")' in script, name
+    assert 'if (focal !== "") {\n      body.append("focal", focal);' in script
+    assert (
+        'if (intrinsics) {\n      body.append("intrinsics", intrinsics, intrinsics.name);' in script
+    )
+    assert "job.input.camera" in script  # the job list shows the camera
 
 
 def test_viewer_data_of_a_finished_job(
