@@ -44,7 +44,8 @@ TOO_DEEP = (
 )
 HOW_TO_SEND = (
     "send multipart/form-data with a 'file' field (npz, HDF5 or CSV, or a video: mp4, webm "
-    "or avi, with an optional 'mask' PNG) and an optional 'params' field (a JSON object), or "
+    "or avi, with an optional 'mask' PNG), an optional 'params' field (a JSON object) and "
+    "optionally the camera ('focal' in pixels, or 'intrinsics': K as text), or "
     "application/json with 'tracks' (F x P x 2) and 'params'"
 )
 
