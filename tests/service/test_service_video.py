@@ -267,13 +267,17 @@ def test_video_upload_through_the_api_runs_in_a_real_worker(
     from service.client import MojuClient
 
     with MojuClient(live_api) as client:
-        job = client.submit(video_files["video"], {"max_iter": 3}, mask=video_files["mask"])
+        job = client.submit(
+            video_files["video"], {"max_iter": 3}, mask=video_files["mask"], focal=150.0
+        )
         assert job.input.format == "video" and job.input.video.has_mask
+        assert job.input.camera.source == "focal"
         record = client.wait(job, timeout=120)
         assert record.status.value == "finished", (record.error, worker.log())
         tracks = client.download_tracks(job, tmp_path / "tracks.npz")
         with np.load(tracks, allow_pickle=False) as data:
             n_points = data["W"].shape[1]
+            np.testing.assert_array_equal(data["K"], job.input.camera.K)  # tracked with it
         assert n_points == record.result.tracking.reconstructed > 0
         frames = client.download_frames_zip(job, tmp_path / "frames.zip")
         with zipfile.ZipFile(frames) as archive:
