@@ -26,7 +26,8 @@ from moju_core.cameras.intrinsics import MAX_INTRINSICS_BYTES, Intrinsics, parse
 from moju_core.errors import MeasurementError
 from moju_core.io import Measurements
 from service.errors import InvalidInput
-from service.schemas import CameraSummary
+from service.schemas import CameraSource, CameraSummary
+from service.validation_messages import shorten
 
 #: The form fields read here.
 CAMERA_FIELDS = ("focal", "intrinsics")
@@ -50,7 +51,7 @@ class CameraRequest:
     matrix: tuple[tuple[float, ...], ...] | None = None
 
     @property
-    def source(self) -> str:
+    def source(self) -> CameraSource:
         """The field that gave the camera: ``"focal"`` or ``"intrinsics"``."""
         return "focal" if self.matrix is None else "intrinsics"
 
@@ -70,9 +71,9 @@ class CameraRequest:
         return Intrinsics.from_focal(self.focal, frame_size)
 
 
-def summary(intrinsics: Intrinsics, source: str) -> CameraSummary:
+def summary(intrinsics: Intrinsics, source: CameraSource) -> CameraSummary:
     """The job record's view of a camera and where it came from."""
-    return CameraSummary(K=intrinsics.K.tolist(), source=source)  # type: ignore[arg-type]
+    return CameraSummary(K=intrinsics.K.tolist(), source=source)
 
 
 def _given(value: Any) -> bool:
@@ -85,7 +86,7 @@ def _given(value: Any) -> bool:
     return bool(value.strip())
 
 
-def _focal(value: Any) -> float:
+def _focal(value: str | UploadFile) -> float:
     """The 'focal' field in pixels, judged by the library's rule for a focal length
     (:meth:`Intrinsics.from_focal`: a positive finite number; the frame size plays no part in
     that check, so any will do here)."""
@@ -97,12 +98,18 @@ def _focal(value: Any) -> float:
             f"the 'focal' field is {len(text)} characters long; give {_FOCAL_EXAMPLE}"
         )
     try:
-        return Intrinsics.from_focal(text, (1, 1)).fx
+        focal = float(text)
+    except ValueError:
+        raise InvalidInput(
+            f"the 'focal' field {shorten(text)!r} is not a number; give {_FOCAL_EXAMPLE}"
+        ) from None
+    try:
+        return Intrinsics.from_focal(focal, (1, 1)).fx
     except MeasurementError as exc:
         raise InvalidInput(f"the 'focal' field: {exc}; give {_FOCAL_EXAMPLE}") from None
 
 
-async def _matrix(value: Any) -> tuple[tuple[float, ...], ...]:
+async def _matrix(value: str | UploadFile) -> tuple[tuple[float, ...], ...]:
     """The 'intrinsics' field (a file part or text) as K, parsed by the library."""
     if isinstance(value, UploadFile):
         raw = await value.read(MAX_INTRINSICS_BYTES + 1)

@@ -19,6 +19,9 @@ from service.states import JobStatus
 
 _EXAMPLE_ID = "0b7e9f6c-3a51-4f0e-9d7c-2c1e8a4b5d60"
 
+#: Where a job's camera came from (:class:`CameraSummary`).
+CameraSource = Literal["focal", "intrinsics", "file", "default"]
+
 
 class VideoSummary(BaseModel):
     """What the API found in an uploaded video, from its headers and first frames."""
@@ -64,7 +67,7 @@ class CameraSummary(BaseModel):
         ),
         examples=[[[115.2, 0.0, 47.5], [0.0, 115.2, 35.5], [0.0, 0.0, 1.0]]],
     )
-    source: Literal["focal", "intrinsics", "file", "default"] = Field(
+    source: CameraSource = Field(
         description=(
             "Where K came from: the 'focal' form field (principal point at the image "
             "centre), the 'intrinsics' form field, the K of the uploaded tracks file, or the "

@@ -176,10 +176,10 @@ def test_focal_with_a_tracks_file_needs_its_frame_size(
 
 BAD_CAMERAS = [
     ({"focal": "-5"}, "the 'focal' field: the focal length must be a positive number of pixels"),
-    ({"focal": "0"}, "must be a positive number of pixels, got '0'"),
-    ({"focal": "nan"}, "must be a positive number of pixels, got 'nan'"),
+    ({"focal": "0"}, "must be a positive number of pixels, got 0.0"),
+    ({"focal": "nan"}, "must be a positive number of pixels, got nan"),
     ({"focal": "inf"}, "must be a positive number of pixels"),
-    ({"focal": "wide"}, "the focal length 'wide' is not a number; give a number of pixels"),
+    ({"focal": "wide"}, "the 'focal' field 'wide' is not a number; give a number of pixels"),
     ({"focal": "1" * 100}, "the 'focal' field is 100 characters long"),
     ({"focal": b"800"}, "the 'focal' field must be text"),
     ({"intrinsics": "1 0 2\n0 1 3\n"}, "the 'intrinsics' field holds 2 row(s) of [3] numbers"),
