@@ -82,6 +82,8 @@ def prior_shapes(
     rays = intrinsics.normalise(W).reshape(n_frames, 2, n_points).transpose(0, 2, 1)
     rays = np.where(visibility[:, :, None], rays, np.nan)
     fit = max_depth_shapes(rays, visibility, seed=seed)
+    if not np.isfinite(fit.depths).any():
+        raise MeasurementError(_unsolved_prior_message(fit.status, rays, intrinsics))
     depths = fit.depths.copy()
     unplaced = visibility & ~np.isfinite(depths)
     if unplaced.any():
@@ -89,6 +91,19 @@ def prior_shapes(
         depths = np.where(unplaced, median[:, None], depths)
     shapes = depths[:, :, None] * np.concatenate([rays, np.ones((n_frames, n_points, 1))], 2)
     return _fill_hidden(shapes, np.isfinite(shapes).all(axis=2)), fit
+
+
+def _unsolved_prior_message(status: str, rays: np.ndarray, intrinsics: Intrinsics) -> str:
+    """What to do when the cone program placed no point: usually a focal length so long that
+    the tracks span almost no angle, where a perspective camera is an orthographic one."""
+    view = float(np.degrees(2.0 * np.arctan(np.nanmax(np.abs(rays)))))
+    return (
+        f"the surface prior found no depth (cone solver status {status!r}); the tracks span "
+        f"a field of view of {view:.3g} degrees with the focal length "
+        f"{intrinsics.K[0, 0]:.6g} px. Check the focal length (in pixels, about the image "
+        "width for an ordinary lens), or reconstruct without intrinsics (orthographic) or "
+        "with surface_prior='none'"
+    )
 
 
 def _fill_hidden(shapes: np.ndarray, known: np.ndarray) -> np.ndarray:

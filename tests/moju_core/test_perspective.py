@@ -86,3 +86,14 @@ def test_the_rule_for_the_perspective_path():
         uses_surface_prior(SolverParams(surface_prior="isometric"), None)
     with pytest.raises(MeasurementError, match="method 'pta'"):
         uses_surface_prior(SolverParams(surface_prior="isometric", method="pta"), CAMERA)
+
+
+def test_a_focal_length_far_too_long_is_refused_with_what_to_do():
+    """Pixel tracks of an ordinary lens given a focal length of 1e12 px span 2e-8 degrees: the
+    prior's cone program cannot place a point, and the error says so instead of failing later."""
+    rays, _ = cylinder_sheet(n_points=80, n_frames=6, seed=0)
+    pixels = rays * 500.0 + np.array([320.0, 240.0])
+    W = pixels.transpose(0, 2, 1).reshape(12, -1)
+    camera = Intrinsics.from_focal(1e12, (640, 480))
+    with pytest.raises(MeasurementError, match="field of view .* focal length"):
+        reconstruct(W, SolverParams(seed=0), intrinsics=camera)
