@@ -1,0 +1,370 @@
+"""Video to 3D on rendered perspective footage: tracks against perfect tracks, per kind.
+
+Every scene is a sheet bending isometrically in front of a static pinhole camera
+(``moju_core.datasets.footage_scenes.footage_scene``: curl, crease or cloth; 0.2-0.3 m,
+2-5 of its lengths away, turning 5-30 degrees, its depth changing by 8-20 %), rendered at
+640 x 480 with f = 1.2 x 640 px (``moju_core.footage.perspective_render``), tracked with
+``track_frames`` (the true first-frame mask, the default step) and reconstructed with
+``reconstruct(W, SolverParams(seed=0), visibility=..., intrinsics=camera)`` (defaults):
+
+* ``tracks``: the solvable tracks on the surface, as tracked;
+* ``perfect``: the true image paths of the same points, with the tracker's visibility
+  (``benchmarks/tracking.py:perfect_tracks``);
+* ``ortho tracks`` / ``ortho perfect``: the same without the camera (the orthographic
+  solve), an ablation.
+
+Scores against the true 3D paths of the same points (metres, camera frame):
+``scaled_e3d`` (per-frame scale + Procrustes, every entry, hidden ones included, as the
+solver returns every point in every frame), the same over the visible entries only, and the
+out-of-plane ratio. The rigid baseline is the better of two single rigid shapes aligned to
+every frame with a per-frame scale: the first frame's true shape, and the generalised
+Procrustes mean of all true frames. Targets: ``e3D tracks <= 1.15 e3D perfect + 0.005``,
+out-of-plane ratio (tracks) >= 0.8, ``e3D tracks <= 0.5 rigid``.
+
+By default each seed renders one kind, ``FOOTAGE_KINDS[seed % 3]`` (design seeds 0-2 and
+held-out seeds 10-12 each cover the three kinds once); ``--all-kinds`` renders every kind for
+every seed. Results: ``benchmarks/results/footage/footage[_quick].json`` and ``.md``::
+
+    PYTHONPATH=. nice python benchmarks/footage.py              # seeds 0-2 design, 10-12 held out
+    PYTHONPATH=. nice python benchmarks/footage.py --quick      # one small scene
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from harness import RESULTS, provenance, table, write_json, write_markdown
+from tracking import perfect_tracks
+
+from moju_core import SolverParams, reconstruct
+from moju_core.cameras.intrinsics import DEFAULT_FOCAL_FACTOR, Intrinsics
+from moju_core.datasets.footage_scenes import FOOTAGE_KINDS, footage_scene
+from moju_core.datasets.totem import out_of_plane_ratio, scaled_e3d
+from moju_core.footage.perspective_render import PerspectiveVideo, render_perspective
+from moju_core.footage.render import score_tracks
+from moju_core.footage.tracking import Tracks, track_frames
+from moju_core.metrics import align, center_frames
+
+OUT = RESULTS / "footage"
+#: Tolerances of the targets: tracked <= RATIO x perfect + SLACK; out-of-plane >= OOP;
+#: tracked <= RIGID_FRACTION x rigid.
+RATIO, SLACK, OOP, RIGID_FRACTION = 1.15, 0.005, 0.8, 0.5
+#: Pixels within this distance of the first frame's silhouette count as "near the edge".
+EDGE_PX = 4.0
+
+
+def scene_video(kind: str, seed: int, args: argparse.Namespace) -> PerspectiveVideo:
+    """Render one scene at the run's size; the focal length is 1.2 x the larger side."""
+    scene = footage_scene(kind, n_frames=args.frames, n_points=args.mesh, seed=seed)
+    camera = Intrinsics.from_focal(
+        DEFAULT_FOCAL_FACTOR * max(args.width, args.height), (args.width, args.height)
+    )
+    return render_perspective(
+        scene.shapes,
+        scene.faces,
+        scene.uv,
+        camera,
+        width=args.width,
+        height=args.height,
+        seed=seed,
+        name=f"{kind} {seed}",
+    )
+
+
+def rigid_baselines(truth: np.ndarray) -> dict[str, float]:
+    """e3D of single rigid shapes scaled and aligned to every frame of ``truth`` (F, P, 3).
+
+    ``first``: the first true frame; ``mean``: the generalised Procrustes mean (frames scaled
+    and rotated onto the running mean, 10 rounds).
+    """
+    n_frames = truth.shape[0]
+    centred = center_frames(truth)
+    mean = centred[0]
+    for _ in range(10):
+        target = np.broadcast_to(mean, centred.shape)
+        norms = np.linalg.norm(centred.reshape(n_frames, -1), axis=1)
+        scaled = centred * (np.linalg.norm(mean) / norms)[:, None, None]
+        mean = align(scaled, target, "procrustes").mean(axis=0)
+    return {
+        "first": scaled_e3d(np.repeat(truth[:1], n_frames, axis=0), truth),
+        "mean": scaled_e3d(np.repeat(mean[None], n_frames, axis=0), truth),
+    }
+
+
+def visible_e3d(estimate: np.ndarray, truth: np.ndarray, visible: np.ndarray) -> float:
+    """``scaled_e3d`` frame by frame over the visible points (F, P) only, averaged."""
+    return float(
+        np.mean(
+            [scaled_e3d(estimate[f, v][None], truth[f, v][None]) for f, v in enumerate(visible)]
+        )
+    )
+
+
+def solve(source: Tracks, camera: Intrinsics | None, truth: np.ndarray) -> dict[str, Any]:
+    """Reconstruct ``source`` with default parameters (seed 0) and score it."""
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = reconstruct(
+            source.W, SolverParams(seed=0), visibility=source.visibility, intrinsics=camera
+        )
+    return {
+        "e3d": scaled_e3d(result.shapes, truth),
+        "e3d_visible": visible_e3d(result.shapes, truth, source.visibility),
+        "out_of_plane": out_of_plane_ratio(result.shapes, truth),
+        "seconds": time.perf_counter() - start,
+    }
+
+
+def track_diagnostics(video: PerspectiveVideo, kept: Tracks, index: np.ndarray) -> dict:
+    """Pixel errors of the solved tracks against their true paths, overall and by region.
+
+    ``edge``: tracks starting within EDGE_PX of the first frame's silhouette; ``drift``: the
+    median error in the last quarter of the frames over that in the first quarter.
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    n_frames = kept.n_frames
+    positions = kept.W.reshape(n_frames, 2, -1).transpose(0, 2, 1)
+    error = np.linalg.norm(positions - video.paths_2d[:, index], axis=2)  # NaN where lost
+    distance = distance_transform_edt(video.mask)
+    start = video.points_xy[index]
+    near_edge = distance[start[:, 1], start[:, 0]] <= EDGE_PX
+    quarter = max(1, n_frames // 4)
+    early, late = np.nanmedian(error[1 : quarter + 1]), np.nanmedian(error[-quarter:])
+    return {
+        "median_px": float(np.nanmedian(error[1:])),
+        "p90_px": float(np.nanpercentile(error[1:], 90)),
+        "rms_px": float(np.sqrt(np.nanmean(error[1:] ** 2))),
+        "edge_fraction": float(near_edge.mean()),
+        "edge_median_px": float(np.nanmedian(error[1:, near_edge])) if near_edge.any() else None,
+        "interior_median_px": float(np.nanmedian(error[1:, ~near_edge])),
+        "drift": float(late / early) if early > 0 else None,
+        "late_median_px": float(late),
+        "kept_hidden": float(
+            (kept.visibility & ~video.visible[:, index]).sum() / max(kept.visibility.sum(), 1)
+        ),
+    }
+
+
+def run_scene(kind: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    """Render, track and reconstruct one scene; the row of the tables."""
+    start = time.perf_counter()
+    video = scene_video(kind, seed, args)
+    rendered = time.perf_counter()
+    camera = video.intrinsics
+    tracks = replace(track_frames(list(video.frames), mask=video.mask), intrinsics=camera)
+    tracked = time.perf_counter()
+    kept, perfect, index = perfect_tracks(video, tracks)
+    truth = video.paths_3d[:, index]
+    scores = score_tracks(video, tracks.W)
+    row: dict[str, Any] = {
+        "kind": kind,
+        "seed": seed,
+        "frames": video.n_frames,
+        "points": int(index.size),
+        "kept": float(kept.visibility.mean()),
+        "median_error_px": scores.median_error,
+        "p90_error_px": scores.p90_error,
+        "track_px": track_diagnostics(video, kept, index),
+        "rigid": rigid_baselines(truth),
+        "render_s": rendered - start,
+        "track_s": tracked - rendered,
+    }
+    solves = {"tracks": (kept, camera), "perfect": (perfect, camera)}
+    if not args.no_ortho:
+        solves.update({"ortho tracks": (kept, None), "ortho perfect": (perfect, None)})
+    for label, (source, intrinsics) in solves.items():
+        row[label] = solve(source, intrinsics, truth)
+    return judge(row)
+
+
+def judge(row: dict[str, Any]) -> dict[str, Any]:
+    """Add the rigid baseline's choice and the three targets to a scene's row."""
+    rigid_kind = min(row["rigid"], key=row["rigid"].get)
+    rigid = row["rigid"][rigid_kind]
+    tracked, perfect = row["tracks"]["e3d"], row["perfect"]["e3d"]
+    row["rigid_best"] = {"shape": rigid_kind, "e3d": rigid}
+    row["targets"] = {
+        "tracks_vs_perfect": tracked <= RATIO * perfect + SLACK,
+        "out_of_plane": row["tracks"]["out_of_plane"] >= OOP,
+        "vs_rigid": tracked <= RIGID_FRACTION * rigid,
+    }
+    return row
+
+
+def scenes(seeds: list[int], all_kinds: bool) -> list[tuple[str, int]]:
+    """(kind, seed) pairs: every kind per seed, or the seed's own kind."""
+    if all_kinds:
+        return [(kind, seed) for seed in seeds for kind in FOOTAGE_KINDS]
+    return [(FOOTAGE_KINDS[seed % len(FOOTAGE_KINDS)], seed) for seed in seeds]
+
+
+def summary(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """Means of a split's rows."""
+
+    def mean(get) -> float:
+        return float(np.mean([get(r) for r in rows]))
+
+    out = {
+        f"e3d {label}": mean(lambda r, x=label: r[x]["e3d"])
+        for label in ("tracks", "perfect", "ortho tracks", "ortho perfect")
+        if label in rows[0]
+    }
+    out["out_of_plane tracks"] = mean(lambda r: r["tracks"]["out_of_plane"])
+    out["e3d rigid"] = mean(lambda r: r["rigid_best"]["e3d"])
+    for target in ("tracks_vs_perfect", "out_of_plane", "vs_rigid"):
+        out[f"met {target}"] = int(sum(r["targets"][target] for r in rows))
+    out["scenes"] = len(rows)
+    return out
+
+
+def _fmt(value: float | None, digits: int = 4) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def markdown(splits: dict[str, list[dict[str, Any]]]) -> list[str]:
+    """The tables: one row per scene, per split; then the tracks' diagnostics."""
+    header = [
+        "split",
+        "kind",
+        "seed",
+        "points",
+        "kept",
+        "e3D tracks",
+        "e3D perfect",
+        "ratio",
+        "<= 1.15 p + 0.005",
+        "oop tracks",
+        "oop perfect",
+        "rigid (shape)",
+        "<= 0.5 rigid",
+        "e3D ortho tracks",
+        "e3D ortho perfect",
+        "solve s (t, p)",
+    ]
+    lines, diag = [], []
+    for split, rows in splits.items():
+        for r in rows:
+            t, p = r["tracks"], r["perfect"]
+            ortho = [_fmt(r.get(k, {}).get("e3d")) for k in ("ortho tracks", "ortho perfect")]
+            lines.append(
+                [
+                    split,
+                    r["kind"],
+                    r["seed"],
+                    r["points"],
+                    f"{r['kept']:.0%}",
+                    _fmt(t["e3d"]),
+                    _fmt(p["e3d"]),
+                    f"{t['e3d'] / p['e3d']:.2f}",
+                    "yes" if r["targets"]["tracks_vs_perfect"] else "no",
+                    _fmt(t["out_of_plane"], 2),
+                    _fmt(p["out_of_plane"], 2),
+                    f"{r['rigid_best']['e3d']:.4f} ({r['rigid_best']['shape']})",
+                    "yes" if r["targets"]["vs_rigid"] else "no",
+                    *ortho,
+                    f"{t['seconds']:.0f}, {p['seconds']:.0f}",
+                ]
+            )
+            px = r["track_px"]
+            diag.append(
+                [
+                    split,
+                    r["kind"],
+                    r["seed"],
+                    _fmt(t["e3d_visible"]),
+                    _fmt(p["e3d_visible"]),
+                    _fmt(px["median_px"], 3),
+                    _fmt(px["p90_px"], 2),
+                    _fmt(px["rms_px"], 2),
+                    f"{px['edge_fraction']:.0%}",
+                    _fmt(px["edge_median_px"], 3),
+                    _fmt(px["interior_median_px"], 3),
+                    _fmt(px["late_median_px"], 3),
+                    _fmt(px["drift"], 2),
+                    f"{px['kept_hidden']:.2%}",
+                ]
+            )
+    body = table(header, lines)
+    body += ["", "## Visible-entry e3D and the tracks' pixel errors", ""]
+    body += table(
+        [
+            "split",
+            "kind",
+            "seed",
+            "e3D vis tracks",
+            "e3D vis perfect",
+            "median px",
+            "p90 px",
+            "rms px",
+            "edge tracks",
+            "edge median px",
+            "interior median px",
+            "last-quarter median px",
+            "drift (last / first quarter)",
+            "kept hidden",
+        ],
+        diag,
+    )
+    body += ["", "## Means per split", ""]
+    for split, rows in splits.items():
+        body.append(
+            f"* {split}: "
+            + ", ".join(
+                f"{k} {v:.4f}" if isinstance(v, float) else f"{k} {v}"
+                for k, v in summary(rows).items()
+            )
+        )
+    return body
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="one small scene, to prove it runs")
+    parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
+    parser.add_argument("--held-out", type=int, nargs="*", default=[10, 11, 12])
+    parser.add_argument("--all-kinds", action="store_true", help="every kind for every seed")
+    parser.add_argument("--frames", type=int, default=30)
+    parser.add_argument("--width", type=int, default=640)
+    parser.add_argument("--height", type=int, default=480)
+    parser.add_argument("--mesh", type=int, default=6000, help="vertices of the sheet's mesh")
+    parser.add_argument("--no-ortho", action="store_true", help="skip the orthographic solves")
+    parser.add_argument("--tag", default="", help="suffix of the result files")
+    args = parser.parse_args()
+    if args.quick:
+        args.seeds, args.held_out, args.frames = [0], [], 10
+        args.width, args.height, args.mesh = 320, 240, 2000
+    meta = provenance()
+    splits: dict[str, list[dict[str, Any]]] = {}
+    for split, seeds in (("design", args.seeds), ("held-out", args.held_out)):
+        for kind, seed in scenes(seeds, args.all_kinds):
+            row = run_scene(kind, seed, args)
+            print(
+                split,
+                {k: row[k] for k in ("kind", "seed", "targets")},
+                {k: round(row[k]["e3d"], 4) for k in ("tracks", "perfect")},
+                flush=True,
+            )
+            splits.setdefault(split, []).append(row)
+    name = "footage" + ("_quick" if args.quick else "") + args.tag
+    settings = {k: getattr(args, k) for k in ("frames", "width", "height", "mesh", "all_kinds")}
+    write_json(
+        OUT / f"{name}.json",
+        meta,
+        settings=settings,
+        splits=splits,
+        summary={s: summary(rows) for s, rows in splits.items()},
+    )
+    body = markdown(splits)
+    write_markdown(OUT / f"{name}.md", "Video to 3D on perspective footage", meta, body)
+    print("\n".join(body))
+
+
+if __name__ == "__main__":
+    main()
