@@ -341,6 +341,8 @@ def main() -> None:
         args.seeds, args.held_out, args.frames = [0], [], 10
         args.width, args.height, args.mesh = 320, 240, 2000
     meta = provenance()
+    name = "footage" + ("_quick" if args.quick else "") + args.tag
+    settings = {k: getattr(args, k) for k in ("frames", "width", "height", "mesh", "all_kinds")}
     splits: dict[str, list[dict[str, Any]]] = {}
     for split, seeds in (("design", args.seeds), ("held-out", args.held_out)):
         for kind, seed in scenes(seeds, args.all_kinds):
@@ -352,8 +354,13 @@ def main() -> None:
                 flush=True,
             )
             splits.setdefault(split, []).append(row)
-    name = "footage" + ("_quick" if args.quick else "") + args.tag
-    settings = {k: getattr(args, k) for k in ("frames", "width", "height", "mesh", "all_kinds")}
+            write_results(name, meta, settings, splits)  # after every scene: long runs
+
+
+def write_results(
+    name: str, meta: dict[str, Any], settings: dict[str, Any], splits: dict[str, list[dict]]
+) -> None:
+    """Write the JSON and the markdown tables of the scenes so far (and print the tables)."""
     write_json(
         OUT / f"{name}.json",
         meta,
@@ -363,7 +370,7 @@ def main() -> None:
     )
     body = markdown(splits)
     write_markdown(OUT / f"{name}.md", "Video to 3D on perspective footage", meta, body)
-    print("\n".join(body))
+    print("\n".join(body), flush=True)
 
 
 if __name__ == "__main__":
