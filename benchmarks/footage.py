@@ -43,7 +43,7 @@ from tracking import perfect_tracks
 
 from moju_core import SolverParams, reconstruct
 from moju_core.cameras.intrinsics import DEFAULT_FOCAL_FACTOR, Intrinsics
-from moju_core.datasets.footage_scenes import FOOTAGE_KINDS, footage_scene
+from moju_core.datasets.footage_scenes import FOOTAGE_KINDS, FootageScene, footage_scene
 from moju_core.datasets.totem import out_of_plane_ratio, scaled_e3d
 from moju_core.footage.perspective_render import PerspectiveVideo, render_perspective
 from moju_core.footage.render import score_tracks
@@ -56,15 +56,19 @@ OUT = RESULTS / "footage"
 RATIO, SLACK, OOP, RIGID_FRACTION = 1.15, 0.005, 0.8, 0.5
 #: Pixels within this distance of the first frame's silhouette count as "near the edge".
 EDGE_PX = 4.0
+#: Bins of |cos(angle between the viewing ray and the surface normal)| of slant_errors.
+SLANT_BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.7), (0.7, 1.01))
 
 
-def scene_video(kind: str, seed: int, args: argparse.Namespace) -> PerspectiveVideo:
+def scene_video(
+    kind: str, seed: int, args: argparse.Namespace
+) -> tuple[FootageScene, PerspectiveVideo]:
     """Render one scene at the run's size; the focal length is 1.2 x the larger side."""
     scene = footage_scene(kind, n_frames=args.frames, n_points=args.mesh, seed=seed)
     camera = Intrinsics.from_focal(
         DEFAULT_FOCAL_FACTOR * max(args.width, args.height), (args.width, args.height)
     )
-    return render_perspective(
+    return scene, render_perspective(
         scene.shapes,
         scene.faces,
         scene.uv,
@@ -152,10 +156,59 @@ def track_diagnostics(video: PerspectiveVideo, kept: Tracks, index: np.ndarray) 
     }
 
 
+def slant_errors(
+    scene: FootageScene, video: PerspectiveVideo, kept: Tracks, index: np.ndarray
+) -> dict[str, Any]:
+    """The tracks' pixel errors by how obliquely the surface is seen.
+
+    ``|cos|`` of the angle between the viewing ray and the surface normal at the point (the
+    area-weighted normal of the nearest mesh vertex), in bins SLANT_BINS; per bin the share
+    of the kept track-frames after the first, their median and 90th percentile error (px).
+    Also the tracks whose error exceeds 2 px in some frame and the rms error without the
+    worst 1 % of the track-frames.
+    """
+    from scipy.spatial import cKDTree
+
+    corners = scene.shapes[:, scene.faces]  # (F, M, 3, 3)
+    normals = np.cross(corners[:, :, 1] - corners[:, :, 0], corners[:, :, 2] - corners[:, :, 0])
+    vertex_normals = np.zeros_like(scene.shapes)
+    for k in range(3):
+        np.add.at(vertex_normals, (slice(None), scene.faces[:, k]), normals)
+    nearest = cKDTree(scene.shapes[0]).query(video.paths_3d[0, index])[1]
+    normal = vertex_normals[:, nearest]
+    points = video.paths_3d[:, index]
+    cosine = np.abs(np.einsum("fpk,fpk->fp", normal, points)) / (
+        np.linalg.norm(normal, axis=2) * np.linalg.norm(points, axis=2)
+    )
+    n_frames = kept.n_frames
+    error = np.linalg.norm(
+        kept.W.reshape(n_frames, 2, -1).transpose(0, 2, 1) - video.paths_2d[:, index], axis=2
+    )
+    valid = np.isfinite(error)
+    valid[0] = False
+    bins = []
+    for low, high in SLANT_BINS:
+        chosen = valid & (cosine >= low) & (cosine < high)
+        values = error[chosen]
+        bins.append({
+            "cos": [low, high], "share": float(chosen.sum() / valid.sum()),
+            "median_px": float(np.median(values)) if values.size else None,
+            "p90_px": float(np.percentile(values, 90)) if values.size else None,
+        })  # fmt: skip
+    errors = np.sort(error[valid])
+    worst = np.nanmax(np.where(valid, error, np.nan), axis=0)
+    return {
+        "bins": bins,
+        "tracks_over_2px": int(np.sum(worst > 2.0)),
+        "rms_px": float(np.sqrt(np.mean(errors**2))),
+        "rms_px_without_worst_1pc": float(np.sqrt(np.mean(errors[: int(0.99 * errors.size)] ** 2))),
+    }
+
+
 def run_scene(kind: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
     """Render, track and reconstruct one scene; the row of the tables."""
     start = time.perf_counter()
-    video = scene_video(kind, seed, args)
+    scene, video = scene_video(kind, seed, args)
     rendered = time.perf_counter()
     camera = video.intrinsics
     tracks = replace(track_frames(list(video.frames), mask=video.mask), intrinsics=camera)
@@ -176,6 +229,9 @@ def run_scene(kind: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
         "render_s": rendered - start,
         "track_s": tracked - rendered,
     }
+    row["track_px"]["slant"] = slant_errors(scene, video, kept, index)
+    if args.tracks_only:
+        return row
     solves = {"tracks": (kept, camera), "perfect": (perfect, camera)}
     if not args.no_ortho:
         solves.update({"ortho tracks": (kept, None), "ortho perfect": (perfect, None)})
@@ -336,17 +392,25 @@ def main() -> None:
     parser.add_argument("--mesh", type=int, default=6000, help="vertices of the sheet's mesh")
     parser.add_argument("--no-ortho", action="store_true", help="skip the orthographic solves")
     parser.add_argument("--tag", default="", help="suffix of the result files")
+    parser.add_argument(
+        "--tracks-only", action="store_true", help="render and track only: the pixel errors"
+    )
     args = parser.parse_args()
     if args.quick:
         args.seeds, args.held_out, args.frames = [0], [], 10
         args.width, args.height, args.mesh = 320, 240, 2000
     meta = provenance()
-    name = "footage" + ("_quick" if args.quick else "") + args.tag
+    name = "footage" + ("_tracks" if args.tracks_only else "")
+    name += ("_quick" if args.quick else "") + args.tag
     settings = {k: getattr(args, k) for k in ("frames", "width", "height", "mesh", "all_kinds")}
     splits: dict[str, list[dict[str, Any]]] = {}
     for split, seeds in (("design", args.seeds), ("held-out", args.held_out)):
         for kind, seed in scenes(seeds, args.all_kinds):
             row = run_scene(kind, seed, args)
+            if args.tracks_only:
+                splits.setdefault(split, []).append(row)
+                write_tracks_only(name, meta, settings, splits)
+                continue
             print(
                 split,
                 {k: row[k] for k in ("kind", "seed", "targets")},
@@ -355,6 +419,32 @@ def main() -> None:
             )
             splits.setdefault(split, []).append(row)
             write_results(name, meta, settings, splits)  # after every scene: long runs
+
+
+def write_tracks_only(
+    name: str, meta: dict[str, Any], settings: dict[str, Any], splits: dict[str, list[dict]]
+) -> None:
+    """``--tracks-only``: the tracks' errors by slant, JSON and markdown."""
+    write_json(OUT / f"{name}.json", meta, settings=settings, splits=splits)
+    header = ["split", "kind", "seed", "tracks", "median px"]
+    header += [f"|cos| {lo}-{min(hi, 1.0)}: share, median, p90 px" for lo, hi in SLANT_BINS]
+    header += ["tracks > 2 px", "rms px", "rms px without worst 1 %"]
+    lines = []
+    for split, rows in splits.items():
+        for r in rows:
+            slant = r["track_px"]["slant"]
+            cells = [
+                f"{b['share']:.1%}, {_fmt(b['median_px'], 2)}, {_fmt(b['p90_px'], 2)}"
+                for b in slant["bins"]
+            ]
+            lines.append([
+                split, r["kind"], r["seed"], r["points"], _fmt(r["track_px"]["median_px"], 3),
+                *cells, slant["tracks_over_2px"], _fmt(slant["rms_px"], 2),
+                _fmt(slant["rms_px_without_worst_1pc"], 2),
+            ])  # fmt: skip
+    body = table(header, lines)
+    write_markdown(OUT / f"{name}.md", "Tracking errors on perspective footage", meta, body)
+    print("\n".join(body), flush=True)
 
 
 def write_results(
