@@ -27,6 +27,9 @@ every seed. Results: ``benchmarks/results/footage/footage[_quick].json`` and ``.
 
     PYTHONPATH=. nice python benchmarks/footage.py              # seeds 0-2 design, 10-12 held out
     PYTHONPATH=. nice python benchmarks/footage.py --quick      # one small scene
+    PYTHONPATH=. nice python benchmarks/footage.py --tracks-only  # pixel errors by slant, no solve
+    PYTHONPATH=. nice python benchmarks/footage.py --seeds 2 1 --held-out --drop-px 2 \\
+        --no-ortho --tag _drop2px  # oracle: without the tracks that err by > 2 px
 """
 
 from __future__ import annotations
@@ -205,6 +208,25 @@ def slant_errors(
     }
 
 
+def drop_wrong_tracks(
+    video: PerspectiveVideo, kept: Tracks, perfect: Tracks, index: np.ndarray, limit_px: float
+) -> tuple[Tracks, Tracks, np.ndarray]:
+    """An oracle ablation: leave out the tracks whose error exceeds ``limit_px`` in some frame
+    (judged against the ground truth), from the tracks and from the perfect tracks alike."""
+    n_frames = kept.n_frames
+    positions = kept.W.reshape(n_frames, 2, -1).transpose(0, 2, 1)
+    error = np.linalg.norm(positions - video.paths_2d[:, index], axis=2)
+    good = ~(np.nan_to_num(error, nan=0.0) > limit_px).any(axis=0)
+
+    def subset(tracks: Tracks) -> Tracks:
+        return replace(
+            tracks, W=tracks.W[:, good], visibility=tracks.visibility[:, good],
+            colors=tracks.colors[good],
+        )  # fmt: skip
+
+    return subset(kept), subset(perfect), index[good]
+
+
 def run_scene(kind: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
     """Render, track and reconstruct one scene; the row of the tables."""
     start = time.perf_counter()
@@ -214,6 +236,8 @@ def run_scene(kind: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
     tracks = replace(track_frames(list(video.frames), mask=video.mask), intrinsics=camera)
     tracked = time.perf_counter()
     kept, perfect, index = perfect_tracks(video, tracks)
+    if args.drop_px is not None:
+        kept, perfect, index = drop_wrong_tracks(video, kept, perfect, index, args.drop_px)
     truth = video.paths_3d[:, index]
     scores = score_tracks(video, tracks.W)
     row: dict[str, Any] = {
@@ -394,6 +418,12 @@ def main() -> None:
     parser.add_argument("--tag", default="", help="suffix of the result files")
     parser.add_argument(
         "--tracks-only", action="store_true", help="render and track only: the pixel errors"
+    )
+    parser.add_argument(
+        "--drop-px",
+        type=float,
+        default=None,
+        help="oracle ablation: leave out tracks whose true error exceeds this in some frame",
     )
     args = parser.parse_args()
     if args.quick:
