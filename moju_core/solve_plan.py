@@ -41,6 +41,9 @@ class SolvePlan:
         How hidden entries were completed.
     camera_source : str
         Where the rotations come from (``"known"`` or the estimator's name).
+    rotation_smoothing : float
+        Weight of the smoother that took frame-to-frame jitter out of given rotations
+        (:func:`moju_core.cameras.smoothing.smooth_rotations`); 0 when used as given.
     refine_rotations : bool
         Whether the loop re-fits the rotations to the shapes.
     smoothness : float
@@ -69,6 +72,7 @@ class SolvePlan:
     data_term: DataTermName
     camera_model: Literal["orthographic", "perspective"] = "orthographic"
     surface_prior: Literal["none", "isometric"] = "none"
+    rotation_smoothing: float = 0.0
 
     def __str__(self) -> str:
         return "\n".join(f"{field.name}: {getattr(self, field.name)}" for field in fields(self))

@@ -14,6 +14,7 @@ from threadpoolctl import threadpool_limits
 from moju_core import cameras, defaults, feasibility, perspective, pta, solve_plan
 from moju_core.cameras import projection
 from moju_core.cameras.intrinsics import Intrinsics
+from moju_core.cameras.smoothing import smooth_rotations
 from moju_core.completion.completed import (
     CompletedTracks,
     camera_tracks,
@@ -271,11 +272,14 @@ def _estimate_cameras(
 ) -> cameras.CameraEstimate:
     """The known rotations, or an estimate (:func:`moju_core.cameras.estimate_cameras`).
 
+    Known rotations lose the frame-to-frame jitter that cross-validation finds in them
+    (:func:`moju_core.cameras.smoothing.smooth_rotations`); smooth ones are used as given.
     With missing data the estimator sees the points of
     :func:`moju_core.completion.completed.camera_tracks`.
     """
     if params.rotations == "known":
-        return cameras.CameraEstimate(rotations, "known")
+        smoothed, weight = smooth_rotations(rotations)
+        return cameras.CameraEstimate(smoothed, "known", smoothing=weight)
     camera_input, decomposition = tracks.centred, tracks.decomposition
     if completed is not None:
         noisy = tracks.noise > defaults.EXACT_DATA_NOISE
@@ -376,6 +380,7 @@ def _plan(
         noise=float(tracks.noise),
         completion=completion,
         camera_source=estimate.source,
+        rotation_smoothing=estimate.smoothing,
         refine_rotations=estimate.refine and params.method != "pta",
         smoothness=float(params.smoothness),
         signal_fit=signal_fitted,

@@ -66,6 +66,9 @@ class CameraEstimate:
     rigidity : dict of str to float
         :func:`moju_core.cameras.windowed.short_time_rigidity` of the candidates that were
         compared (``"auto"`` only), noise part removed.
+    smoothing : float
+        Weight of :func:`moju_core.cameras.smoothing.smooth_rotations` on given rotations
+        (``"known"`` only); 0 when they were used as given.
     """
 
     rotations: np.ndarray
@@ -74,6 +77,7 @@ class CameraEstimate:
     window: int | None = None
     refine: bool = False
     rigidity: dict[str, float] | None = None
+    smoothing: float = 0.0
 
 
 def estimate_cameras(
