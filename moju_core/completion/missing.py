@@ -47,9 +47,8 @@ from moju_core.spectrum import noise_variance, spectrum
 #: EM sweeps of the warm start (each cannot increase the misfit on the observed entries).
 COMPLETION_SWEEPS = 15
 #: The second fit of the chosen rank, which :func:`complete` keeps when its misfit is lower
-#: by more than the noise variance: the short fit can stop far from the minimum (the cloth
-#: at noise 0.0005, seed 32: 50 times the rank choice's training misfit), the long one can
-#: end in a worse one, and under noise a slightly lower misfit is no better model.
+#: by more than the noise variance: the short fit can stop far from the minimum, the long one
+#: can end in a worse one, and under noise a slightly lower misfit is no better model.
 LONG_EM_SWEEPS, LONG_ALS_SWEEPS = 60, 18
 #: Alternating least squares sweeps after the warm start.
 ALS_SWEEPS = 6
