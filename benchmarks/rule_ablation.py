@@ -41,7 +41,7 @@ import numpy as np
 from harness import RESULTS, provenance, table, write_json, write_markdown
 
 from moju_core import SolverParams, defaults, reconstruct, solve_plan, solver
-from moju_core.completion import missing
+from moju_core.completion import missing, window_subspace
 from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.loop import grouping_steps, loop_state
 from moju_core.metrics import e3d
@@ -56,7 +56,7 @@ HELD_OUT_SEEDS = (301, 302, 303, 304, 305, 306)
 @dataclass(frozen=True)
 class Case:
     """A small solve: sequence, frames, points, noise, occlusion (None or occlusion_mask
-    settings), known rotations."""
+    settings), known rotations, and a prior weight given by the caller (None: chosen)."""
 
     sequence: str
     frames: int
@@ -64,6 +64,7 @@ class Case:
     noise: float = 0.0
     occlusion: tuple[tuple[str, float], ...] | None = None
     known: bool = True
+    smoothness: float | None = None
 
     @property
     def label(self) -> str:
@@ -73,6 +74,8 @@ class Case:
         if self.occlusion:
             parts.append("+".join(f"{k} {v:g}" for k, v in self.occlusion if v))
         parts.append("known" if self.known else "estimated")
+        if self.smoothness is not None:
+            parts.append(f"weight {self.smoothness:g}")
         return ", ".join(parts)
 
 
@@ -92,6 +95,9 @@ PAPER_EST = Case("paper", 60, 300, known=False)
 FACE3_CLOSING = Case("face3", 99, 300, occlusion=CLOSING)
 MARKERS_CLOSING = Case("face4", 350, 41, occlusion=CLOSING)
 BODY_CLOSING = Case("body-osc", 350, 41, occlusion=CLOSING)
+DROPOUT = (("band", 0.0), ("lost", 0.0), ("dropout", 0.1))
+FACE3_CLOSING_EST = Case("face3", 99, 300, occlusion=CLOSING, known=False)
+PAPER_CLOSING_EST = Case("paper", 60, 300, occlusion=CLOSING, known=False)
 
 
 @dataclass(frozen=True)
@@ -148,7 +154,15 @@ RULES: tuple[Rule, ...] = (
         "defaults.unshrunk_with_prior (MIN_DEPTH_PRIOR)",
         "the unshrunk values are kept whatever the prior's weight",
         ((defaults, "unshrunk_with_prior", _identity_unshrunk),),
-        (FACE3_30, FACE4, FACE2, Case("cloth", 60, 300)),
+        (
+            FACE3_30,
+            FACE4,
+            FACE2,
+            Case("cloth", 60, 300),
+            Case("bumps-osc", 60, 300, known=False),
+            Case("flag-osc", 60, 300, known=False),
+            Case("face3", 30, 400, smoothness=1.0),
+        ),
     ),
     Rule(
         "exact-fit-allowance",
@@ -201,6 +215,41 @@ RULES: tuple[Rule, ...] = (
         (BODY_CLOSING, Case("body-turn", 350, 41, occlusion=CLOSING), MARKERS_CLOSING),
     ),
     Rule(
+        "overfit-patience",
+        "completion.missing.OVERFIT_PATIENCE",
+        "1: the rank search stops at the first rank with twice the best held-out error",
+        ((missing, "OVERFIT_PATIENCE", 1),),
+        (FACE3_CLOSING_EST, PAPER_CLOSING_EST, Case("bumps-osc", 60, 300, occlusion=CLOSING)),
+    ),
+    Rule(
+        "hold-out-runs",
+        "completion.missing.HOLD_OUT_RUN_POINTS (HOLD_OUT_RUN_LENGTH)",
+        "0: the rank is chosen on random held-out entries only",
+        ((missing, "HOLD_OUT_RUN_POINTS", 0.0),),
+        (FACE3_CLOSING_EST, PAPER_CLOSING_EST, MARKERS_CLOSING),
+    ),
+    Rule(
+        "noise-windows",
+        "completion.missing.NOISE_WINDOWS",
+        "(10,): no 5-frame blocks when no 10-frame block qualifies",
+        ((missing, "NOISE_WINDOWS", (10,)),),
+        (Case("body-osc", 350, 41, occlusion=DROPOUT), Case("face1", 10, 300, occlusion=CLOSING)),
+    ),
+    Rule(
+        "gap-significance",
+        "completion.missing.GAP_SIGNIFICANCE",
+        "0: the gap correction with the lowest held-out error is taken whenever it is lower",
+        ((missing, "GAP_SIGNIFICANCE", 0.0),),
+        (Case("face4", 350, 41, noise=0.01, occlusion=CLOSING), FACE3_CLOSING, BODY_CLOSING),
+    ),
+    Rule(
+        "extra-directions",
+        "completion.window_subspace.EXTRA_DIRECTIONS",
+        "0: the exact model tries no directions beyond the windows' largest rank",
+        ((window_subspace, "EXTRA_DIRECTIONS", 0),),
+        (FACE3_CLOSING, FACE3_CLOSING_EST, Case("cloth", 60, 300, occlusion=CLOSING)),
+    ),
+    Rule(
         "group-fill-hidden-weight",
         "loop.grouping_steps.GROUP_FILL_HIDDEN_WEIGHT",
         "0: hidden frames do not pull a partly seen point's group fit",
@@ -238,7 +287,7 @@ def run_case(case: Case, seed: int) -> dict[str, Any]:
             warnings.simplefilter("ignore")
             result = reconstruct(
                 W,
-                SolverParams(seed=0),
+                SolverParams(seed=0, smoothness=case.smoothness),
                 rotations=data.rotations if case.known else None,
                 visibility=visibility,
                 threads=1,
