@@ -147,7 +147,7 @@ RULES: tuple[Rule, ...] = (
         "defaults.UNSHRINK_AFTER (loop_state)",
         "0: the unshrunk values are left out from the first iteration",
         ((loop_state, "UNSHRINK_AFTER", 0),),
-        (FACE3, FACE4, BUMPS, FLAG),
+        (FACE3, FACE4, BUMPS, FLAG, PAPER_EST),
     ),
     Rule(
         "depth-prior-gate",
