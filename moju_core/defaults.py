@@ -64,18 +64,17 @@ ROTATION_REFINE_RHO = 1e3
 PTA_MAX_CONDITION = 10.0
 #: Deformation bases the S# step may leave unshrunk (:func:`unshrunk_values`), and the PTA basis
 #: size the cameras must support before it leaves out more than the mean shape. The nuclear
-#: norm shrinks every deformation it penalises towards the zero-depth start, which is what
-#: flattens large deformations; leaving the leading ones out lets the temporal prior give them
-#: depth, but only where the cameras constrain depth: on the slow-yaw face (k = 2) leaving out
-#: two values instead of one took e3D from 0.022 to 0.069 (800 points, known rotations). The cap
-#: rises to the basis shapes the tracks show where they show more (:func:`shown_basis_shapes`):
-#: a fixed cap of 8 cost face3 more than 5 % on four of twelve seeds.
+#: norm shrinks every deformation it penalises towards the zero-depth start, which flattens
+#: large deformations; leaving the leading ones out lets the temporal prior give them depth,
+#: but only where the cameras constrain depth (k >= 3 cosines). The cap rises to the basis
+#: shapes the tracks show where they show more (:func:`shown_basis_shapes`). Held-out check and
+#: guard: benchmarks/notes/2026-12-06-rule-ablation.md, tests/moju_core/test_solve_rules.py.
 MAX_UNSHRUNK_VALUES = 4
 MIN_DEPTH_BASIS = 3
 #: Iterations the S# step shrinks all but the mean shape before it leaves out
 #: ``unshrunk_values``: the convex problem of the first iterations fixes the depth the
-#: unshrunk values then keep. Started at once (0), the rule took face3 from 0.0098 to 0.0261 and
-#: face4 from 0.022 to 0.126 (with 4 values); 10, 20 and 30 gave the same on the sheets to 3 %.
+#: unshrunk values then keep, which matters most where the loop also refines the cameras
+#: (held-out check and guard: as for :data:`MAX_UNSHRUNK_VALUES`).
 UNSHRINK_AFTER = 20
 #: Estimated noise variance of the scale-normalised tracks (relative to their mean square, by
 #: :func:`moju_core.spectrum.noise_variance`) up to which the loop fits complete tracks exactly

@@ -75,20 +75,16 @@ RANK_SELECTION_POINTS = 1000
 HOLD_OUT_RUN_POINTS = 0.1
 HOLD_OUT_RUN_LENGTH = 0.25
 #: Hidden entries whose leverage (:meth:`LowRank.leverage`) is at most this are predicted well
-#: enough by the model to be used as data (:func:`trusted_entries`). Chosen on seeds 0-1 of
-#: the combined occlusion (face3 and bumps-osc at 2,000 points, face4 350 x 41): face3 e3D
-#: 0.0222 / 0.0298 at 30, 0.0199 / 0.0287 at 300, 0.0192 / 0.0272 at 1,000, 0.0198 / 0.0264
-#: at 3,000 but face4 (seed 1) then breaks (0.051 -> 0.099), and trusting every entry gives
-#: 0.028 / 0.029 (face4 0.12).
+#: enough by the model to be used as data (:func:`trusted_entries`); entries of higher leverage
+#: are determined by too few observations, and trusting them lets badly determined completions
+#: into the loop as data (held-out check and guard:
+#: benchmarks/notes/2026-12-06-rule-ablation.md, tests/moju_core/completion/test_missing_rules.py).
 TRUSTED_LEVERAGE = 1000.0
 #: A completion that is not exact is trusted at no hidden entry when the rank it generalises
 #: best at leaves more than this of the held-out error of rank one (beyond the noise:
 #: :attr:`RankChoice.unexplained`): its values there would carry the deformation it misses
-#: into the loop as data. Under the closing occlusion the faces and sheets left at most 0.03
-#: (seeds 0-3, noise-free and at 1 % and 3 % noise) and face4's 41 markers at most 0.006
-#: (seeds 0-27); an articulated body's 41 markers (`body-osc`, `body-turn`, ranks 2-6) left
-#: 0.07-0.22 on seeds 0-3, where trusting the completion raised e3D by up to 66 % (body-osc
-#: seed 1: 0.085 against 0.051), and 0.024-0.33 on seeds 20-31 (4 of 24 below 0.05).
+#: into the loop as data. Smooth surfaces leave a few hundredths, an articulated body's
+#: markers more (held-out check and guard: as for :data:`TRUSTED_LEVERAGE`).
 MAX_UNEXPLAINED = 0.05
 #: A point seen in at least this fraction of the frames is well seen: its column of the model
 #: is fitted on as many frames as it predicts. The camera step uses these points
@@ -96,14 +92,10 @@ MAX_UNEXPLAINED = 0.05
 #: are taken from them (:mod:`moju_core.completion.neighbours`).
 WELL_SEEN = 0.5
 #: Frames per block of the noise estimate with missing data (:func:`observed_noise_variance`),
-#: the shorter only where no block of the longer qualifies. Within 10 frames the deformations
-#: of these sequences have a rank below the block's 20 rows; in 5-frame blocks of the 10-frame
-#: faces they did not, and noise-free tracks read as noisy (face1: 2.8e-4 against 2.8e-6 on
-#: the complete tracks). But of 41 markers hidden at random in 10 % of the entries, about 14
-#: are seen in all of 10 frames, too few for a block: the noise was then read from the filled
-#: tracks, whose completion errors counted as noise, and the body's noise-free markers lost
-#: their exact fit (seed 3: e3D 0.072 against 0.022 complete). In 5 frames they read 4e-8 to
-#: 2e-7 of the tracks' mean square (seed 3, 10 % / 30 % dropout, the closing occlusion).
+#: the shorter only where no block of the longer qualifies: within 10 frames the deformations
+#: have a rank below the block's 20 rows, and sparse markers hidden at random leave too few
+#: points seen in all of 10 frames for a block, so the filled tracks' completion errors would
+#: count as noise. Held-out check: benchmarks/notes/2026-12-06-rule-ablation.md.
 NOISE_WINDOWS = (10, 5)
 
 
