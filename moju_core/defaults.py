@@ -84,11 +84,10 @@ UNSHRINK_AFTER = 20
 #: paper's noise protocol at lambda_g = 0.002 already 2.5e-5 to 9e-5 (and 6e-4 at 0.01); above it
 #: the data term stays soft, since exact fits of noisy tracks put the noise into the depths.
 EXACT_DATA_NOISE = 1e-5
-#: Smallest temporal-prior weight taken to set the depth: with it the S# step leaves more than
-#: the mean shape unshrunk, and exact tracks are fitted exactly. Both give the depth to the
-#: prior (its cut-off, near gamma^(-1/4) radians per frame, must lie well below one). With
-#: weight 1 leaving 3 values unshrunk took a 30-frame face3 from e3D 0.090 to 0.109 (400
-#: points), and with weight 0.1 the exact fit took face1 (seed 3) from 0.0428 to 0.0451.
+#: Smallest temporal-prior weight taken to set the depth: with it exact tracks are fitted
+#: exactly (:func:`moju_core.loop.loop_state.fits_exactly`) and noisy ones may take the signal
+#: fit, both giving the depth to the prior, whose cut-off (near gamma^(-1/4) radians per
+#: frame) must lie well below one.
 MIN_DEPTH_PRIOR = 10.0
 
 
@@ -175,12 +174,6 @@ def shown_basis_shapes(signal_rank: int) -> int:
     up to ``rank - 2``.
     """
     return math.ceil(signal_rank / 3)
-
-
-def unshrunk_with_prior(unshrunk: int, smoothness: float) -> int:
-    """The default ``unshrunk_values`` once the smoothness is known: only the mean shape (at
-    most 1) unless the prior's weight is at least :data:`MIN_DEPTH_PRIOR`."""
-    return unshrunk if smoothness >= MIN_DEPTH_PRIOR else min(unshrunk, 1)
 
 
 def resolve(
