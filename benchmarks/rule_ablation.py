@@ -18,6 +18,10 @@ raises) on some held-out seed. A rule that changes no held-out solve (the same s
 and without) has shown no benefit; it stays only where a test reproduces the failure it
 guards against.
 
+Rules removed after their measurement (``depth-prior-gate``, ``group-fill-hidden-weight``,
+``gap-significance``) are no longer listed; their rows are in ``benchmarks/results/rules/`` and
+``benchmarks/notes/2026-12-06-rule-ablation.md``.
+
 Writes ``rules.json`` and ``rules.md`` into ``--output-dir`` (default
 ``benchmarks/results/rules``).
 """
@@ -43,7 +47,7 @@ from harness import RESULTS, provenance, table, write_json, write_markdown
 from moju_core import SolverParams, defaults, reconstruct, solve_plan, solver
 from moju_core.completion import missing, window_subspace
 from moju_core.datasets import make_sequence, occlusion_mask
-from moju_core.loop import grouping_steps, loop_state
+from moju_core.loop import loop_state
 from moju_core.metrics import e3d
 from moju_core.priors import smoothness
 
@@ -111,10 +115,6 @@ class Rule:
     cases: tuple[Case, ...]
 
 
-def _identity_unshrunk(unshrunk: int, smoothness_weight: float) -> int:
-    return unshrunk
-
-
 def _one_value(rotations: np.ndarray, signal_rank: int = 0) -> int:
     return 1
 
@@ -148,21 +148,6 @@ RULES: tuple[Rule, ...] = (
         "0: the unshrunk values are left out from the first iteration",
         ((loop_state, "UNSHRINK_AFTER", 0),),
         (FACE3, FACE4, BUMPS, FLAG, PAPER_EST),
-    ),
-    Rule(
-        "depth-prior-gate",
-        "defaults.unshrunk_with_prior (MIN_DEPTH_PRIOR)",
-        "the unshrunk values are kept whatever the prior's weight",
-        ((defaults, "unshrunk_with_prior", _identity_unshrunk),),
-        (
-            FACE3_30,
-            FACE4,
-            FACE2,
-            Case("cloth", 60, 300),
-            Case("bumps-osc", 60, 300, known=False),
-            Case("flag-osc", 60, 300, known=False),
-            Case("face3", 30, 400, smoothness=1.0),
-        ),
     ),
     Rule(
         "exact-fit-allowance",
@@ -236,25 +221,11 @@ RULES: tuple[Rule, ...] = (
         (Case("body-osc", 350, 41, occlusion=DROPOUT), Case("face1", 10, 300, occlusion=CLOSING)),
     ),
     Rule(
-        "gap-significance",
-        "completion.missing.GAP_SIGNIFICANCE",
-        "0: the gap correction with the lowest held-out error is taken whenever it is lower",
-        ((missing, "GAP_SIGNIFICANCE", 0.0),),
-        (Case("face4", 350, 41, noise=0.01, occlusion=CLOSING), FACE3_CLOSING, BODY_CLOSING),
-    ),
-    Rule(
         "extra-directions",
         "completion.window_subspace.EXTRA_DIRECTIONS",
         "0: the exact model tries no directions beyond the windows' largest rank",
         ((window_subspace, "EXTRA_DIRECTIONS", 0),),
         (FACE3_CLOSING, FACE3_CLOSING_EST, Case("cloth", 60, 300, occlusion=CLOSING)),
-    ),
-    Rule(
-        "group-fill-hidden-weight",
-        "loop.grouping_steps.GROUP_FILL_HIDDEN_WEIGHT",
-        "0: hidden frames do not pull a partly seen point's group fit",
-        ((grouping_steps, "GROUP_FILL_HIDDEN_WEIGHT", 0.0),),
-        (FACE3_CLOSING, Case("paper", 60, 300, occlusion=CLOSING)),
     ),
 )
 
