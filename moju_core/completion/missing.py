@@ -53,19 +53,14 @@ LONG_EM_SWEEPS, LONG_ALS_SWEEPS = 60, 18
 #: Alternating least squares sweeps after the warm start.
 ALS_SWEEPS = 6
 #: Ranks tried for the completion, in order until the held-out error exceeds twice the best
-#: (:func:`choose_rank`). A rank too high for the pattern of hidden entries overfits: on a
-#: face with a sweeping occluder and 20 % dropout the error at the hidden entries was 6 % of
-#: the tracks' RMS at rank 3 and 29 % at rank 9, while random dropout alone supports higher
-#: ranks. The rank is chosen per input by the error on held-out observed entries. An earlier
-#: cap at the significant rank of the zero-filled W bound under random dropout, where the
-#: zero-filling itself raises the noise floor: face3 with 30 % dropout stopped at rank 4 with
-#: held-out errors of 1e-3 of the tracks' energy, against 2.5e-5 at rank 9.
+#: (:func:`choose_rank`): a rank too high for the pattern of hidden entries overfits (a
+#: sweeping occluder supports lower ranks than random dropout), so the rank is chosen per
+#: input by the error on held-out observed entries, not capped by the zero-filled W's rank.
 CANDIDATE_RANKS = (1, 2, 3, 4, 6, 9, 12, 16, 20)
 #: Consecutive candidate ranks with more than twice the best held-out error after which
-#: :func:`choose_rank` stops. One is not enough: a rank can miss the held-out entries badly
-#: where the next one fits them (the paper sheet under the closing occlusion, seed 0: held-out
-#: error 7.7e-4 at rank 3, 3.1e-3 at rank 4, 3.3e-4 at rank 6; stopped at 4, the completion
-#: kept rank 3 and the estimated cameras were 36 degrees off, e3D 0.28).
+#: :func:`choose_rank` stops: one rank can miss the held-out entries badly where the next
+#: fits them (held-out check and guard: benchmarks/notes/2026-12-06-rule-ablation.md,
+#: tests/moju_core/completion/test_missing_rules.py).
 OVERFIT_PATIENCE = 2
 #: Observed entries held out at random to choose the rank, and the points used for the choice.
 HOLD_OUT_FRACTION = 0.05
