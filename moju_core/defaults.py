@@ -32,67 +32,49 @@ SUBSPACE_DIM = 4
 MAX_DEFAULT_GROUPS = 600
 
 #: Weight of the nuclear norm relative to the largest singular value of the initial shape
-#: matrix ``f(pinv(R) W)``. The loop is a continuation: the S# step thresholds singular values
-#: at ``beta2 / rho``, which starts at 0.2 x the top singular value (rho = 1e-2) and relaxes by
-#: the factor c = 1.1 per iteration; the depth is found during that relaxation. Relative to the
-#: data, the value is scale free. Measured on the synthetic faces (10 and 99 frames, 1,500
-#: points, known rotations; bmm e3D for 2e-3 / 4e-3 / 7e-3: face1 0.039 / 0.040 / 0.042, face3
-#: 0.014 / 0.017 / 0.023) and far worse below 1e-3 (face1 0.11 at 3e-4): the thresholds then
-#: fall too fast for the depth to emerge before the gap closes.
+#: matrix ``f(pinv(R) W)`` (scale free). The loop is a continuation: the S# step thresholds at
+#: ``beta2 / rho``, 0.2 x the top singular value at rho = 1e-2, relaxed by c = 1.1 per
+#: iteration; the depth emerges during that relaxation, so the start must not be much lower
+#: (measurements: benchmarks/notes/2026-12-06-rule-ablation.md, "Moved from the code").
 BETA2_RELATIVE = 2e-3
 
 
 #: A regrouping that moves at most this fraction of the trajectories counts as settled for the
-#: stopping rule (shape gap below tol and grouping settled). With many points a handful of
-#: trajectories near group boundaries keep swapping between nearly equal subspaces; waiting for
-#: a regrouping that moves nobody then ran 100,000-point solves to the iteration cap (243
-#: iterations instead of about 120) without changing e3D. With the temporal prior, 0.6-1 % of
-#: the rolling sheet's trajectories keep swapping once the shapes have converged (gap 1e-12):
-#: at 0.1 % that solve ran to rho_max (243 iterations, 2x the time) for the same e3D (0.0107).
+#: stopping rule: once the shapes have converged, trajectories on group boundaries keep swapping
+#: between nearly equal subspaces, and waiting for none to move runs the loop to its cap.
 SETTLED_MOVE_FRACTION = 1e-2
-#: Shape gap that counts as converged once it stops falling (see ``STALL_ITERATIONS``). The S#
-#: step takes its SVD through the F x F Gram matrix, which squares the condition number: its
-#: result is exact only to about sqrt(machine epsilon) ~ 1e-8 relative. On noisy data S# has
-#: no exactly-zero singular values, and once the threshold beta2 / rho falls to their level the
-#: gap stops at 1e-9 to 1e-7 instead of reaching tol = 1e-10 (face3, 5,000 points, 4.5 % noise:
-#: minimum 5e-10 at iteration 130, then rising with rho); with a full SVD the same run reaches
-#: tol at iteration 145. Without this rule such runs went on to rho_max (243 iterations) with
-#: no change in e3D.
+#: Shape gap that counts as converged once it stops falling (see ``STALL_ITERATIONS``): about
+#: sqrt(machine epsilon), the relative precision of the S# step's SVD through the F x F Gram
+#: matrix; on noisy tracks the gap stops falling there, above a ``tol`` of 1e-10.
 GAP_PRECISION = 1e-8
 #: Shape gap at which a loop that fits the tracks exactly
-#: (:func:`moju_core.priors.temporal_prior.depth_step`) stops, whatever smaller ``tol`` was asked.
-#: Nothing is shrunk away from S# once rho is large, and its Gram-matrix SVD then gives the
-#: small singular values only to about 1e-7 (face3, 800 points: the gap stalls at 1-2e-7 from
-#: iteration 140 on). e3D settles long before: stopping at 1e-5 instead of 1e-6 left it the
-#: same to four digits on bumps-osc, flag-osc, face3, face4, paper, cloth and bumps-turn
-#: (known rotations, design seeds 0-1 and held-out seeds 5-6) and took 3-39 fewer iterations
-#: (bumps-osc seed 0: 155 -> 119); at 1e-4 bumps-osc stopped at iteration 70, e3D +0.03 %.
+#: (:func:`moju_core.priors.temporal_prior.depth_step`) stops, whatever smaller ``tol`` was asked:
+#: nothing is shrunk from S# once rho is large, its Gram-matrix SVD resolves the small singular
+#: values only to about 1e-7, and e3D has settled long before the gap reaches that.
 EXACT_GAP_PRECISION = 1e-5
 #: Iterations without a new smallest shape gap after which a gap below ``GAP_PRECISION`` counts
 #: as converged.
 STALL_ITERATIONS = 10
 #: Approximate (windowed) rotations are refined with the shapes in every iteration while rho is
-#: below this (moju_core.loop.admm.run, ``refine_rotations``). By then the loop's threshold
-#: beta2 / rho has fallen below 1e-5 of the top singular value and the shapes have settled;
-#: 10 and 1e3 gave the same e3D on the synthetic sheets (paper 0.0125, cloth 0.039).
+#: below this (moju_core.loop.admm.run, ``refine_rotations``): by then the threshold beta2 / rho
+#: is below 1e-5 of the top singular value and the shapes have settled.
 ROTATION_REFINE_RHO = 1e3
 #: Largest condition number of the PTA system accepted by the default basis size: errors in the
 #: tracks may grow at most tenfold in the trajectory coefficients.
 PTA_MAX_CONDITION = 10.0
 #: Deformation bases the S# step may leave unshrunk (:func:`unshrunk_values`), and the PTA basis
 #: size the cameras must support before it leaves out more than the mean shape. The nuclear
-#: norm shrinks every deformation it penalises towards the zero-depth start, which is what
-#: flattens large deformations; leaving the leading ones out lets the temporal prior give them
-#: depth, but only where the cameras constrain depth: on the slow-yaw face (k = 2) leaving out
-#: two values instead of one took e3D from 0.022 to 0.069 (800 points, known rotations). The cap
-#: rises to the basis shapes the tracks show where they show more (:func:`shown_basis_shapes`):
-#: a fixed cap of 8 cost face3 more than 5 % on four of twelve seeds.
+#: norm shrinks every deformation it penalises towards the zero-depth start, which flattens
+#: large deformations; leaving the leading ones out lets the temporal prior give them depth,
+#: but only where the cameras constrain depth (k >= 3 cosines). The cap rises to the basis
+#: shapes the tracks show where they show more (:func:`shown_basis_shapes`). Held-out check and
+#: guard: benchmarks/notes/2026-12-06-rule-ablation.md, tests/moju_core/test_solve_rules.py.
 MAX_UNSHRUNK_VALUES = 4
 MIN_DEPTH_BASIS = 3
 #: Iterations the S# step shrinks all but the mean shape before it leaves out
 #: ``unshrunk_values``: the convex problem of the first iterations fixes the depth the
-#: unshrunk values then keep. Started at once (0), the rule took face3 from 0.0098 to 0.0261 and
-#: face4 from 0.022 to 0.126 (with 4 values); 10, 20 and 30 gave the same on the sheets to 3 %.
+#: unshrunk values then keep, which matters most where the loop also refines the cameras
+#: (held-out check and guard: as for :data:`MAX_UNSHRUNK_VALUES`).
 UNSHRINK_AFTER = 20
 #: Estimated noise variance of the scale-normalised tracks (relative to their mean square, by
 #: :func:`moju_core.spectrum.noise_variance`) up to which the loop fits complete tracks exactly
@@ -102,11 +84,10 @@ UNSHRINK_AFTER = 20
 #: paper's noise protocol at lambda_g = 0.002 already 2.5e-5 to 9e-5 (and 6e-4 at 0.01); above it
 #: the data term stays soft, since exact fits of noisy tracks put the noise into the depths.
 EXACT_DATA_NOISE = 1e-5
-#: Smallest temporal-prior weight taken to set the depth: with it the S# step leaves more than
-#: the mean shape unshrunk, and exact tracks are fitted exactly. Both give the depth to the
-#: prior (its cut-off, near gamma^(-1/4) radians per frame, must lie well below one). With
-#: weight 1 leaving 3 values unshrunk took a 30-frame face3 from e3D 0.090 to 0.109 (400
-#: points), and with weight 0.1 the exact fit took face1 (seed 3) from 0.0428 to 0.0451.
+#: Smallest temporal-prior weight taken to set the depth: with it exact tracks are fitted
+#: exactly (:func:`moju_core.loop.loop_state.fits_exactly`) and noisy ones may take the signal
+#: fit, both giving the depth to the prior, whose cut-off (near gamma^(-1/4) radians per
+#: frame) must lie well below one.
 MIN_DEPTH_PRIOR = 10.0
 
 
@@ -193,12 +174,6 @@ def shown_basis_shapes(signal_rank: int) -> int:
     up to ``rank - 2``.
     """
     return math.ceil(signal_rank / 3)
-
-
-def unshrunk_with_prior(unshrunk: int, smoothness: float) -> int:
-    """The default ``unshrunk_values`` once the smoothness is known: only the mean shape (at
-    most 1) unless the prior's weight is at least :data:`MIN_DEPTH_PRIOR`."""
-    return unshrunk if smoothness >= MIN_DEPTH_PRIOR else min(unshrunk, 1)
 
 
 def resolve(

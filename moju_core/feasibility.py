@@ -37,13 +37,13 @@ __all__ = [
 #: rigid Euclidean reconstruction (and ``min_frames_for_bases(1) == 3``).
 MIN_ESTIMATION_FRAMES = 3
 
+#: Byte units of the memory estimate and its message.
+_MIB = 2**20
+_GIB = 2**30
 #: Bytes of float64 the solver keeps per (frame, point) pair; see :func:`estimate_memory_bytes`.
 _SOLVER_BYTES_PER_FRAME_POINT = (8 * 3 + 4 * 2) * 8
 #: Interpreter, numpy/scipy/scikit-learn and the small per-group matrices.
-_SOLVER_BASE_BYTES = 128 * 2**20
-
-_MIB = 2**20
-_GIB = 2**30
+_SOLVER_BASE_BYTES = 128 * _MIB
 
 
 def min_frames_for_bases(n_bases: int) -> int:

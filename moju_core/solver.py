@@ -361,9 +361,6 @@ def _plan(
                 unshrunk = defaults.unshrunk_values(rotations, signal_rank)
                 params = params.model_copy(update={"unshrunk_values": unshrunk})
         signal_fitted = fit is not None
-    if derive_unshrunk:
-        unshrunk = defaults.unshrunk_with_prior(params.unshrunk_values, params.smoothness)
-        params = params.model_copy(update={"unshrunk_values": unshrunk})
     exact = fits_exactly(exact_data, estimate.refine, params.smoothness)
     masked = (
         exact and not signal_fitted and completed is not None

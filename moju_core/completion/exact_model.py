@@ -28,43 +28,32 @@ from moju_core.completion.missing import LowRank, expand_mask, hold_out, well_se
 EXACT_SWEEPS = 100
 EXACT_RIDGE = 1e-9
 #: Sweeps between the checks of :func:`_alternate`, and how many sweeps without the misfit
-#: halving make a stall: one check for every rank tried but the last, 20 sweeps for the last.
-#: On face3 seed 8 (combined occlusion) ALS sat at 7e-9 to 9e-9 of the entries' mean square
-#: for 40 sweeps at the right rank before it fell to 1e-15; with the extra directions the
-#: plateau is shorter (converged after 70 sweeps).
+#: halving make a stall: one check for every rank tried but the last, 20 sweeps for the last,
+#: since ALS can sit on a plateau for tens of sweeps at the right rank before it falls to
+#: round-off.
 EXACT_CHECK_EVERY = 5
 EXACT_PATIENCE = 20
 #: Misfit (relative to the entries' mean square) at which :func:`_alternate` takes the fit as
-#: exact. With spare directions ALS levels off at 1e-13 to 1e-12 on faces (face3, combined
-#: occlusion, seeds 0 and 4), and there it goes on through stalls and larger bases (0.4 and
-#: 0.9 s against 0.11 and 0.16 s at 1e-12). But at 1e-12 bumps-osc (2,000 points, combined
-#: occlusion, seeds 1 and 3), whose spectrum has no gap, passed as exact at rank 12 and lost
-#: with estimated cameras (e3D 0.172 -> 0.200 and 0.154 -> 0.161, solve 1.8 -> 5.3 s).
+#: exact: where ALS levels off on exactly low-rank tracks (1e-13 to 1e-12), and below what
+#: tracks whose spectrum decays without a gap reach at a high rank.
 EXACT_FIT_MISFIT = 1e-13
 #: Fraction of the selected points set aside to test :func:`exact_model`, and the largest
 #: mean squared error at their held-out entries, relative to the tracks' mean square, for
-#: which the model is taken as exact (1e-5 of the RMS). Exactly low-rank tracks (faces, the
-#: cloth, the waving flag) reach 1e-12 to 1e-16 there once ALS has converged; tracks whose
-#: spectrum decays without a gap (the paper, the bumpy surfaces, the rolling sheets:
-#: singular values 1e-5 to 1e-8 of the largest beyond rank 10) 1e-9 to 1e-1. At 1e-5 (the
-#: exact fit's noise threshold) bumps-osc passed at rank 10 with errors of 1e-3 of the RMS at
-#: hidden entries, and fitted as exact they cost accuracy (estimated cameras: 0.19 -> 0.28).
+#: which the model is taken as exact (1e-5 of the RMS): exactly low-rank tracks reach
+#: 1e-12 to 1e-16 there, tracks whose spectrum decays without a gap 1e-9 and more.
 EXACT_TEST_FRACTION = 0.1
 EXACT_MODEL_ERROR = 1e-10
 #: Well-seen points (at most) on which :func:`exact_model` fits and tests the model, and the
-#: candidate column spaces it tries (:func:`moju_core.completion.window_subspace.column_spaces`). On
-#: faces, the cloth and the flag with the sweeping occluder (seeds 0-3) the first candidate
-#: was kept in 27 of 28 cases, the second in the other; tracks that are not exactly of low
-#: rank pay 20-100 sweeps per candidate for nothing (0.2-0.7 s at 1,000 points).
+#: candidate column spaces it tries (:func:`moju_core.completion.window_subspace.column_spaces`):
+#: a cost bound; the first candidate almost always holds, and tracks that are not exactly of
+#: low rank pay 20-100 sweeps per candidate for nothing.
 EXACT_POINTS = 500
 EXACT_CANDIDATES = 2
 #: :func:`_trimmed`: a point sees every direction of an orthonormal basis on its observed rows
-#: when their smallest singular value is at least this (face3, combined occlusion, 17
-#: directions for W's 14: 10-17 % of the points at 3e-7 to 2e-6, the rest at 0.18 and above),
-#: and a drop of the coefficients' singular values by this factor marks where the spare
-#: directions begin (there 1.5e-4 -> 8.5e-8 and 2.0e-4 -> 1.2e-6 of the largest; between W's
-#: own directions the steps were 0.12-0.95, and only the sizes from the windows' rank up are
-#: tried, each kept only if ALS then fits exactly).
+#: when their smallest singular value is at least this, and a drop of the coefficients'
+#: singular values by this factor marks where the spare directions begin (between a W's own
+#: directions the steps are 0.1-1, to its spare ones 1e-3 and less; each size is kept only
+#: if ALS then fits exactly).
 VISIBLE_DIRECTIONS = 1e-2
 SPARE_GAP = 0.1
 #: Fewer well-seen points than this many test points' worth (sparse markers: 41 on face4) do

@@ -47,26 +47,20 @@ from moju_core.spectrum import noise_variance, spectrum
 #: EM sweeps of the warm start (each cannot increase the misfit on the observed entries).
 COMPLETION_SWEEPS = 15
 #: The second fit of the chosen rank, which :func:`complete` keeps when its misfit is lower
-#: by more than the noise variance: the short fit can stop far from the minimum (the cloth
-#: at noise 0.0005, seed 32: 50 times the rank choice's training misfit), the long one can
-#: end in a worse one, and under noise a slightly lower misfit is no better model.
+#: by more than the noise variance: the short fit can stop far from the minimum, the long one
+#: can end in a worse one, and under noise a slightly lower misfit is no better model.
 LONG_EM_SWEEPS, LONG_ALS_SWEEPS = 60, 18
 #: Alternating least squares sweeps after the warm start.
 ALS_SWEEPS = 6
 #: Ranks tried for the completion, in order until the held-out error exceeds twice the best
-#: (:func:`choose_rank`). A rank too high for the pattern of hidden entries overfits: on a
-#: face with a sweeping occluder and 20 % dropout the error at the hidden entries was 6 % of
-#: the tracks' RMS at rank 3 and 29 % at rank 9, while random dropout alone supports higher
-#: ranks. The rank is chosen per input by the error on held-out observed entries. An earlier
-#: cap at the significant rank of the zero-filled W bound under random dropout, where the
-#: zero-filling itself raises the noise floor: face3 with 30 % dropout stopped at rank 4 with
-#: held-out errors of 1e-3 of the tracks' energy, against 2.5e-5 at rank 9.
+#: (:func:`choose_rank`): a rank too high for the pattern of hidden entries overfits (a
+#: sweeping occluder supports lower ranks than random dropout), so the rank is chosen per
+#: input by the error on held-out observed entries, not capped by the zero-filled W's rank.
 CANDIDATE_RANKS = (1, 2, 3, 4, 6, 9, 12, 16, 20)
 #: Consecutive candidate ranks with more than twice the best held-out error after which
-#: :func:`choose_rank` stops. One is not enough: a rank can miss the held-out entries badly
-#: where the next one fits them (the paper sheet under the closing occlusion, seed 0: held-out
-#: error 7.7e-4 at rank 3, 3.1e-3 at rank 4, 3.3e-4 at rank 6; stopped at 4, the completion
-#: kept rank 3 and the estimated cameras were 36 degrees off, e3D 0.28).
+#: :func:`choose_rank` stops: one rank can miss the held-out entries badly where the next
+#: fits them (held-out check and guard: benchmarks/notes/2026-12-06-rule-ablation.md,
+#: tests/moju_core/completion/test_missing_rules.py).
 OVERFIT_PATIENCE = 2
 #: Observed entries held out at random to choose the rank, and the points used for the choice.
 HOLD_OUT_FRACTION = 0.05
@@ -76,20 +70,16 @@ RANK_SELECTION_POINTS = 1000
 HOLD_OUT_RUN_POINTS = 0.1
 HOLD_OUT_RUN_LENGTH = 0.25
 #: Hidden entries whose leverage (:meth:`LowRank.leverage`) is at most this are predicted well
-#: enough by the model to be used as data (:func:`trusted_entries`). Chosen on seeds 0-1 of
-#: the combined occlusion (face3 and bumps-osc at 2,000 points, face4 350 x 41): face3 e3D
-#: 0.0222 / 0.0298 at 30, 0.0199 / 0.0287 at 300, 0.0192 / 0.0272 at 1,000, 0.0198 / 0.0264
-#: at 3,000 but face4 (seed 1) then breaks (0.051 -> 0.099), and trusting every entry gives
-#: 0.028 / 0.029 (face4 0.12).
+#: enough by the model to be used as data (:func:`trusted_entries`); entries of higher leverage
+#: are determined by too few observations, and trusting them lets badly determined completions
+#: into the loop as data (held-out check and guard:
+#: benchmarks/notes/2026-12-06-rule-ablation.md, tests/moju_core/completion/test_missing_rules.py).
 TRUSTED_LEVERAGE = 1000.0
 #: A completion that is not exact is trusted at no hidden entry when the rank it generalises
 #: best at leaves more than this of the held-out error of rank one (beyond the noise:
 #: :attr:`RankChoice.unexplained`): its values there would carry the deformation it misses
-#: into the loop as data. Under the closing occlusion the faces and sheets left at most 0.03
-#: (seeds 0-3, noise-free and at 1 % and 3 % noise) and face4's 41 markers at most 0.006
-#: (seeds 0-27); an articulated body's 41 markers (`body-osc`, `body-turn`, ranks 2-6) left
-#: 0.07-0.22 on seeds 0-3, where trusting the completion raised e3D by up to 66 % (body-osc
-#: seed 1: 0.085 against 0.051), and 0.024-0.33 on seeds 20-31 (4 of 24 below 0.05).
+#: into the loop as data. Smooth surfaces leave a few hundredths, an articulated body's
+#: markers more (held-out check and guard: as for :data:`TRUSTED_LEVERAGE`).
 MAX_UNEXPLAINED = 0.05
 #: A point seen in at least this fraction of the frames is well seen: its column of the model
 #: is fitted on as many frames as it predicts. The camera step uses these points
@@ -97,14 +87,10 @@ MAX_UNEXPLAINED = 0.05
 #: are taken from them (:mod:`moju_core.completion.neighbours`).
 WELL_SEEN = 0.5
 #: Frames per block of the noise estimate with missing data (:func:`observed_noise_variance`),
-#: the shorter only where no block of the longer qualifies. Within 10 frames the deformations
-#: of these sequences have a rank below the block's 20 rows; in 5-frame blocks of the 10-frame
-#: faces they did not, and noise-free tracks read as noisy (face1: 2.8e-4 against 2.8e-6 on
-#: the complete tracks). But of 41 markers hidden at random in 10 % of the entries, about 14
-#: are seen in all of 10 frames, too few for a block: the noise was then read from the filled
-#: tracks, whose completion errors counted as noise, and the body's noise-free markers lost
-#: their exact fit (seed 3: e3D 0.072 against 0.022 complete). In 5 frames they read 4e-8 to
-#: 2e-7 of the tracks' mean square (seed 3, 10 % / 30 % dropout, the closing occlusion).
+#: the shorter only where no block of the longer qualifies: within 10 frames the deformations
+#: have a rank below the block's 20 rows, and sparse markers hidden at random leave too few
+#: points seen in all of 10 frames for a block, so the filled tracks' completion errors would
+#: count as noise. Held-out check: benchmarks/notes/2026-12-06-rule-ablation.md.
 NOISE_WINDOWS = (10, 5)
 
 
@@ -405,11 +391,6 @@ def choose_rank(W: np.ndarray, visibility: np.ndarray, noise: float = 0.0) -> Ra
     return RankChoice(best, unexplained, gap, reach)
 
 
-#: Standard errors by which the chosen gap correction must lower the held-out error
-#: (:func:`_choose_gap`), a conventional significance level: of 36 candidates the best is
-#: lower by chance under noise (face4's 41 markers at 1 % noise, closing occlusion, seed 47:
-#: the best one put the hidden entries 0.035 of the RMS off, the completion 0.027).
-GAP_SIGNIFICANCE = 3.0
 #: Bands of distances (frames, inclusive) to the nearest training frame in which
 #: :func:`choose_rank` compares the held-out error for :attr:`RankChoice.reach`, and the fewest
 #: held-out entries a band needs to count.
@@ -442,9 +423,8 @@ def _choose_gap(
 ) -> tuple[gaps.GapFill, np.ndarray]:
     """The correction from the tracks with the smallest held-out error (summed over the
     groups of held-out entries, (2F, n) masks whose union is ``held``) of ``values``, a fit
-    on ``training``; none unless it is lower than the completion's own by
-    :data:`GAP_SIGNIFICANCE` standard errors of the difference (the entries' squared errors
-    paired). Also the corrected values' squared errors at ``held``. O(F n) once, then
+    on ``training``; none unless it is lower than the completion's own. Also the corrected
+    values' squared errors at ``held``. O(F n) once, then
     O(held-out entries) per candidate."""
     parts = gaps.pieces(W, values, training).at(held)
     error = (values - W)[held]
@@ -457,9 +437,7 @@ def _choose_gap(
         if total < best_error:
             best, best_error, best_squared = gap, total, squared
     gain = plain - best_squared
-    mean = sum(float(np.mean(gain[m])) for m in members)
-    spread = np.sqrt(sum(float(np.var(gain[m])) / m.sum() for m in members))
-    if mean > GAP_SIGNIFICANCE * spread:
+    if sum(float(np.mean(gain[m])) for m in members) > 0:
         return best, best_squared
     return gaps.GapFill(), plain
 

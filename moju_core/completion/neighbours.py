@@ -55,10 +55,8 @@ from moju_core.completion.missing import LowRank, expand_mask, well_seen
 
 __all__ = ["NEIGHBOURS", "borrow_values"]
 
-#: Neighbours whose columns are combined. 4, 8 and 16 gave about the same error at the hidden
-#: entries of the lost tracks (face3, 2,000 points, seed 0, neighbours found in one frame:
-#: 0.0131, 0.0128, 0.0135 of the tracks' RMS); in the full solve 8 and 16 gave e3D equal to
-#: 1 % on seeds 0-1.
+#: Neighbours whose columns are combined: a few times the three coordinates a point's
+#: neighbourhood must span; 4, 8 and 16 gave about the same error at hidden entries.
 NEIGHBOURS = 8
 #: Candidates per frame searched, as a multiple of :data:`NEIGHBOURS` + 1 (a well-seen point is
 #: among its own candidates).

@@ -33,8 +33,8 @@ Where the solve fits the tracks exactly (noise-free, complete tracks and fixed c
 that sets the depths there is allowed the larger excess :data:`EXACT_FIT_ALLOWANCE` when the
 bisection settles below it. The trials fit softly, and their misfit counts the motion a prior
 explains away; the exact fit keeps that motion, so the same weight then costs only a choice
-of depths. On the oscillating flag and bumps (10,000 points, known rotations) the 2.5 %
-allowance chose weight 1 on 6 of 8 design seeds (e3D 0.16-0.21) where 10 gave 0.04-0.14.
+of depths. Both allowances were checked on held-out seeds against a fixed weight and without
+the exact-fit allowance (benchmarks/notes/2026-12-06-rule-ablation.md).
 """
 
 from __future__ import annotations
@@ -55,13 +55,10 @@ SMOOTHNESS_GRID = (0.0, 0.1, 1.0, 10.0, 100.0, 1000.0)
 #: The prior may add this fraction of the tracks' non-rigid energy to the misfit.
 DEFORMATION_ALLOWANCE = 0.025
 #: The excess misfit allowed to :data:`~moju_core.defaults.MIN_DEPTH_PRIOR` when the solve will
-#: fit the tracks exactly at that weight. The trials fit softly, where a prior explains away
+#: fit the tracks exactly at that weight: the trials fit softly, where a prior explains away
 #: part of the observed motion; the exact fit keeps all of it and the prior sets only the
-#: depths, so the trials' misfit overstates the harm. Measured (known rotations, trial excess
-#: at weight 10 over the non-rigid energy, seeds 0-4; e3D of the full solve, seeds 0-3 and
-#: 5-6): the oscillating flag and bumps 0.6-12 %, e3D 0.14-0.23 at weight 1 and 0.03-0.14 at
-#: 10, which beat 1 on every seed; the 10-frame faces 57-150 %, e3D at weight 10 1.3-17 times
-#: that at the weight the 2.5 % allowance chose.
+#: depths, so the trials' misfit overstates the harm (held-out check and guard:
+#: benchmarks/notes/2026-12-06-rule-ablation.md, tests/moju_core/priors/test_smoothness_rules.py).
 EXACT_FIT_ALLOWANCE = 0.25
 #: Points the trial solves use (a seeded random subset when there are more). The misfits are
 #: means over F x 2 x 400 entries; on the synthetic sequences 400 and 1,000 points chose the

@@ -80,13 +80,6 @@ def test_the_limited_basis_size_is_the_full_one_capped(limit: int) -> None:
     assert defaults.trajectory_basis_size(rotations, limit=limit) == min(full, limit)
 
 
-def test_a_weak_prior_leaves_only_the_mean_shape_unshrunk() -> None:
-    strong = defaults.MIN_DEPTH_PRIOR
-    assert defaults.unshrunk_with_prior(4, strong) == 4
-    assert defaults.unshrunk_with_prior(4, strong / 10) == 1
-    assert defaults.unshrunk_with_prior(0, 0.0) == 0  # the penalised mean shape stays so
-
-
 def test_noisy_tracks_resolve_to_the_mean_shape_only_before_the_smoothness_trials() -> None:
     rotations = make_sequence("face3", n_points=20).rotations
     assert defaults.unshrunk_values(rotations) > 1
