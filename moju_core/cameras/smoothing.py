@@ -11,9 +11,12 @@ costs nothing.
 :func:`smooth_rotations` fits the six entries of every ``R_f`` (2 x 3) with a Whittaker
 smoother (penalised second differences in time), diagonalised by the DCT, and chooses the
 weight by generalised cross-validation (GCV) over a logarithmic grid; the result is projected
-back onto rotations. When GCV's best weight is the smallest of the grid, the rotations hold no
-jitter that smoothing would remove (true, smooth paths, including fast turns) and they are
-returned unchanged, bit for bit. Cost ``O(F log F)`` per weight, ``O(F)`` memory.
+back onto rotations. The rotations are returned unchanged, bit for bit, when GCV's best weight
+is the smallest of the grid (no jitter to remove: true, smooth paths, fast turns included), and
+when the smoothing would remove at least as much as the path keeps about its mean: then the
+rotations are not a smooth path plus small errors but, say, an unordered set of views (whose
+"smoothing" would move them by tens of degrees). Cost ``O(F log F)`` per weight, ``O(F)``
+memory.
 """
 
 from __future__ import annotations
@@ -57,7 +60,12 @@ def smooth_rotations(rotations: np.ndarray) -> tuple[np.ndarray, float]:
     residual = np.einsum("wf,fc->w", (1.0 - gains) ** 2, coefficients**2)
     gcv = n_frames * residual / (n_frames - gains.sum(axis=1)) ** 2
     best = int(np.argmin(gcv))
-    if best == 0:
+    kept = gains[best][:, None] * coefficients
+    # The DCT's first coefficient is the mean: what the path keeps about its mean, and what
+    # the smoothing takes away, both as energies of the entries.
+    kept_energy = float(np.sum(kept[1:] ** 2))
+    removed_energy = float(residual[best])
+    if best == 0 or removed_energy >= kept_energy:
         return rotations, 0.0
-    smoothed = idct(gains[best][:, None] * coefficients, axis=0, norm="ortho")
+    smoothed = idct(kept, axis=0, norm="ortho")
     return project_to_stiefel(smoothed.reshape(n_frames, 2, 3)), float(SMOOTHING_WEIGHTS[best])

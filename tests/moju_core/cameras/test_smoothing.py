@@ -67,3 +67,16 @@ def test_the_solver_smooths_jittery_given_rotations_and_gains_from_it(monkeypatc
     monkeypatch.setattr(solver, "smooth_rotations", lambda rotations: (rotations, 0.0))
     _, given_error = _known_solve(data, given)
     assert smoothed_error < 0.5 * given_error
+
+
+@pytest.mark.parametrize("n_frames", [5, 30, 100])
+def test_views_in_no_particular_order_are_not_smoothed(n_frames):
+    """Known rotations of an unordered set of views (random, or turns about one axis in random
+    order) are not a smooth path with small errors: smoothing them would move them by tens of
+    degrees, so they are used as given."""
+    scattered = Rotation.random(n_frames, random_state=1).as_matrix()[:, :2]
+    angles = np.random.default_rng(2).uniform(-80.0, 80.0, (n_frames, 1))
+    turns = Rotation.from_euler("y", angles, degrees=True).as_matrix()[:, :2]
+    for rotations in (scattered, turns):
+        smoothed, weight = smooth_rotations(rotations)
+        assert weight == 0.0 and smoothed is rotations
