@@ -13,10 +13,9 @@ smoother (penalised second differences in time), diagonalised by the DCT, and ch
 weight by generalised cross-validation (GCV) over a logarithmic grid; the result is projected
 back onto rotations. The rotations are returned unchanged, bit for bit, when GCV's best weight
 is the smallest of the grid (no jitter to remove: true, smooth paths, fast turns included), and
-when the smoothing would remove at least as much as the path keeps about its mean: then the
-rotations are not a smooth path plus small errors but, say, an unordered set of views (whose
-"smoothing" would move them by tens of degrees). Cost ``O(F log F)`` per weight, ``O(F)``
-memory.
+when von Neumann's ratio test does not find them ordered in time (:func:`is_ordered_path`):
+an unordered set of views is not a path with small errors, and "smoothing" it would move the
+views by tens of degrees. Cost ``O(F log F)`` per weight, ``O(F)`` memory.
 """
 
 from __future__ import annotations
@@ -26,12 +25,32 @@ from scipy.fft import dct, idct
 
 from moju_core.cameras.refinement import project_to_stiefel
 
-__all__ = ["SMOOTHING_WEIGHTS", "smooth_rotations"]
+__all__ = ["ORDER_TEST_Z", "SMOOTHING_WEIGHTS", "is_ordered_path", "smooth_rotations"]
 
 #: GCV's search grid of the Whittaker weight (entries of rotations are in [-1, 1]). At the
 #: smallest weight the filter passes the highest frequency to within 2e-3 (no smoothing); at
 #: the largest it leaves a straight line over hundreds of frames. Eight steps per decade.
 SMOOTHING_WEIGHTS = np.logspace(-4.0, 8.0, 97)
+#: One-sided 1 % level of von Neumann's ratio test (the standard normal's 99th percentile).
+ORDER_TEST_Z = 2.326
+
+
+def is_ordered_path(entries: np.ndarray) -> bool:
+    """Whether rows (F, C) in frame order are a path rather than independent draws.
+
+    Von Neumann's ratio test of serial independence: the mean squared successive difference
+    over the variance is 2 in expectation for independent rows, with a standard deviation of
+    ``2 sqrt((F - 2) / (F^2 - 1))``; a smooth path (plus small errors) gives much less. The
+    rows count as a path when the ratio is below 2 by more than :data:`ORDER_TEST_Z` standard
+    deviations. O(F C).
+    """
+    n_frames = entries.shape[0]
+    spread = float(np.sum((entries - entries.mean(axis=0)) ** 2)) / n_frames
+    if spread == 0.0:
+        return False
+    steps = float(np.sum(np.diff(entries, axis=0) ** 2)) / (n_frames - 1)
+    deviation = 2.0 * np.sqrt((n_frames - 2) / (n_frames**2 - 1))
+    return steps / spread < 2.0 - ORDER_TEST_Z * deviation
 
 
 def smooth_rotations(rotations: np.ndarray) -> tuple[np.ndarray, float]:
@@ -60,12 +79,7 @@ def smooth_rotations(rotations: np.ndarray) -> tuple[np.ndarray, float]:
     residual = np.einsum("wf,fc->w", (1.0 - gains) ** 2, coefficients**2)
     gcv = n_frames * residual / (n_frames - gains.sum(axis=1)) ** 2
     best = int(np.argmin(gcv))
-    kept = gains[best][:, None] * coefficients
-    # The DCT's first coefficient is the mean: what the path keeps about its mean, and what
-    # the smoothing takes away, both as energies of the entries.
-    kept_energy = float(np.sum(kept[1:] ** 2))
-    removed_energy = float(residual[best])
-    if best == 0 or removed_energy >= kept_energy:
+    if best == 0 or not is_ordered_path(entries):
         return rotations, 0.0
-    smoothed = idct(kept, axis=0, norm="ortho")
+    smoothed = idct(gains[best][:, None] * coefficients, axis=0, norm="ortho")
     return project_to_stiefel(smoothed.reshape(n_frames, 2, 3)), float(SMOOTHING_WEIGHTS[best])

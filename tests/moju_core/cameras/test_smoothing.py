@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from moju_core import SolverParams, reconstruct, solver
-from moju_core.cameras.smoothing import smooth_rotations
+from moju_core.cameras.smoothing import is_ordered_path, smooth_rotations
 from moju_core.datasets import make_sequence
 from moju_core.metrics import evaluate, rotation_errors_deg
 
@@ -70,13 +70,20 @@ def test_the_solver_smooths_jittery_given_rotations_and_gains_from_it(monkeypatc
 
 
 @pytest.mark.parametrize("n_frames", [5, 30, 100])
-def test_views_in_no_particular_order_are_not_smoothed(n_frames):
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_views_in_no_particular_order_are_not_smoothed(n_frames, seed):
     """Known rotations of an unordered set of views (random, or turns about one axis in random
     order) are not a smooth path with small errors: smoothing them would move them by tens of
     degrees, so they are used as given."""
-    scattered = Rotation.random(n_frames, random_state=1).as_matrix()[:, :2]
-    angles = np.random.default_rng(2).uniform(-80.0, 80.0, (n_frames, 1))
+    scattered = Rotation.random(n_frames, random_state=seed).as_matrix()[:, :2]
+    angles = np.random.default_rng(seed).uniform(-80.0, 80.0, (n_frames, 1))
     turns = Rotation.from_euler("y", angles, degrees=True).as_matrix()[:, :2]
     for rotations in (scattered, turns):
+        assert not is_ordered_path(rotations.reshape(n_frames, 6))
         smoothed, weight = smooth_rotations(rotations)
         assert weight == 0.0 and smoothed is rotations
+
+
+def test_a_camera_path_with_jitter_is_still_a_path():
+    truth = make_sequence("flag-osc", n_points=50, seed=0).rotations
+    assert is_ordered_path(_jitter(truth, 1.0, seed=1).reshape(len(truth), 6))
