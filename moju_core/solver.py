@@ -27,6 +27,7 @@ from moju_core.loop.data_terms import DataTerm, beyond, choose_term
 from moju_core.loop.loop_state import fits_exactly
 from moju_core.params import SolverParams, as_params, rotation_method
 from moju_core.preprocessing import normalise
+from moju_core.priors import discrepancy
 from moju_core.priors.signal_fit import signal_fit
 from moju_core.priors.smoothness import choose_smoothness
 from moju_core.result import (
@@ -309,6 +310,7 @@ class _Solve:
     fallback: DataTerm | None
     trials: list[tuple[float, float]]
     features: np.ndarray | None
+    weigh_by_discrepancy: bool = False
 
 
 def _plan(
@@ -320,6 +322,7 @@ def _plan(
 ) -> _Solve:
     """Resolve the parameters, choose the prior's weight and the data term: the plan."""
     n_frames, _, n_points = tracks.per_frame.shape
+    user_beta2 = params.beta2
     rotations = estimate.rotations
     initial = np.einsum("fji,fjp->fip", rotations, tracks.per_frame)
     top = lrr.top_singular_value(initial.reshape(n_frames, 3 * n_points))
@@ -387,7 +390,15 @@ def _plan(
     features = None
     if params.method not in ("bmm", "pta") and params.n_groups > 1:
         features = clustering.track_features(tracks.centred)
-    return _Solve(plan, params, fitted_tracks, fitted, term, fallback, trials, features)
+    # The discrepancy principle sets the weight of a soft fit of noisy, complete tracks under
+    # fixed cameras, unless the user set it (moju and sdg; bmm stays Dai et al.'s method).
+    # Refined cameras take part of the residual, so it no longer measures the noise alone.
+    weigh = (
+        user_beta2 is None and term_name == "soft" and completed is None
+        and not plan.refine_rotations and params.method in ("moju", "sdg")
+        and tracks.noise > defaults.EXACT_DATA_NOISE
+    )  # fmt: skip
+    return _Solve(plan, params, fitted_tracks, fitted, term, fallback, trials, features, weigh)
 
 
 def _completion_kind(completed: CompletedTracks | None) -> solve_plan.Completion:
@@ -497,6 +508,18 @@ def _run(solve: _Solve, estimate: cameras.CameraEstimate, report: _Reporter) -> 
     out = admm.run(
         solve.tracks, loop_cameras, solve.params, solve.term, features=solve.features, hook=hook
     )
+    if solve.weigh_by_discrepancy:
+
+        def again(params: SolverParams, previous: admm.LoopOutput) -> admm.LoopOutput:
+            nonlocal done
+            done += previous.n_iter
+            report.expected = done + defaults.expected_iterations(params)
+            return admm.run(
+                solve.tracks, loop_cameras, params, solve.term, features=solve.features,
+                hook=hook,
+            )  # fmt: skip
+
+        out = _weigh_by_discrepancy(out, solve, again)
     if solve.fallback is not None and beyond(out.shapes, solve.term.limit):
         warnings.warn(
             "the exact fit of the observed entries threw hidden entries far off the "
@@ -515,6 +538,21 @@ def _run(solve: _Solve, estimate: cameras.CameraEstimate, report: _Reporter) -> 
             features=solve.features,
             hook=hook,
         )
+    return out
+
+
+def _weigh_by_discrepancy(out: admm.LoopOutput, solve: _Solve, again) -> admm.LoopOutput:
+    """Solve again (``again(params, previous)``) with a larger nuclear-norm weight while the
+    fit absorbs most of the noise (:mod:`moju_core.priors.discrepancy`)."""
+    for _ in range(discrepancy.RESOLVES):
+        ratio = discrepancy.discrepancy(
+            solve.tracks, out.rotations, out.shapes, solve.plan.noise
+        )
+        if ratio >= discrepancy.ABSORBED:
+            break
+        beta2 = discrepancy.next_weight(solve.params.beta2, ratio)
+        solve.params = solve.params.model_copy(update={"beta2": beta2})
+        out = again(solve.params, out)
     return out
 
 
