@@ -32,11 +32,10 @@ from typing import Any
 
 import numpy as np
 from harness import RESULTS, parallel_map, provenance, table, write_json, write_markdown
-from scipy.spatial.transform import Rotation
 from threadpoolctl import threadpool_limits
 
 from moju_core import SolverParams, reconstruct, solver
-from moju_core.datasets import make_sequence
+from moju_core.datasets import make_sequence, perturb_rotations
 from moju_core.metrics import evaluate
 from moju_core.preprocessing import normalise
 from moju_core.spectrum import noise_variance, spectrum
@@ -44,16 +43,6 @@ from moju_core.spectrum import noise_variance, spectrum
 OUTPUT = RESULTS / "cameras"
 #: Weights of the plain nuclear-norm solve, relative to the spectral norm of W.
 NUCLEAR_WEIGHTS = (0.003, 0.01, 0.02, 0.03, 0.05, 0.08, 0.12, 0.2)
-
-
-def perturb(rotations: np.ndarray, degrees: float, seed: int) -> np.ndarray:
-    """Each rotation (F, 2, 3) turned by ``degrees`` about its own random axis."""
-    rng = np.random.default_rng(seed)
-    axes = rng.normal(size=(len(rotations), 3))
-    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    turn = Rotation.from_rotvec(axes * np.radians(degrees)).as_matrix()
-    full = np.concatenate([rotations, np.cross(rotations[:, 0], rotations[:, 1])[:, None]], 1)
-    return (full @ turn)[:, :2]
 
 
 def _known_e3d(data, rotations: np.ndarray, smooth: bool = True) -> float:
@@ -97,7 +86,7 @@ def penalised_nuclear(W: np.ndarray, R: np.ndarray, lam: float, iterations: int 
 def perturbed_unit(name: str, seed: int, noise: float) -> dict[str, Any]:
     data = make_sequence(name, n_points=1_500, noise=noise, seed=seed)
     exact = _known_e3d(data, data.rotations)
-    given = perturb(data.rotations, 1.0, seed + 100)
+    given = perturb_rotations(data.rotations, 1.0, seed + 100)
     as_given = _known_e3d(data, given, smooth=False)
     smoothed = _known_e3d(data, given)
     print(f"{name} s{seed} n{noise}: true {exact:.4f} perturbed {smoothed:.4f} "

@@ -56,7 +56,7 @@ from moju_core.datasets.hard import (
     flag_sequence,
     roll_sequence,
 )
-from moju_core.datasets.noise import add_noise
+from moju_core.datasets.noise import add_noise, perturb_rotations
 from moju_core.datasets.occlusion import occlusion_mask
 from moju_core.datasets.registry import SEQUENCE_NAMES, make_sequence
 from moju_core.datasets.sequence import Sequence
@@ -71,6 +71,7 @@ __all__ = [
     "RotationFrequency",
     "Sequence",
     "add_noise",
+    "perturb_rotations",
     "body_sequence",
     "bumps_sequence",
     "cloth_sequence",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def add_noise(W: np.ndarray, noise: float, seed: int = 0) -> np.ndarray:
@@ -29,3 +30,31 @@ def add_noise(W: np.ndarray, noise: float, seed: int = 0) -> np.ndarray:
         return W.copy()
     scale = noise * np.max(np.abs(W))
     return W + np.random.default_rng(seed).normal(scale=scale, size=W.shape)
+
+
+def perturb_rotations(rotations: np.ndarray, degrees: float, seed: int = 0) -> np.ndarray:
+    """Camera rotations each turned by ``degrees`` about its own random axis.
+
+    The errors are independent from frame to frame (the jitter of an imperfect calibration or
+    tracker), as used to measure what slightly wrong known cameras cost.
+
+    Parameters
+    ----------
+    rotations : ndarray of shape (F, 2, 3)
+        Rotations with orthonormal rows.
+    degrees : float
+        Angle of every frame's error.
+    seed : int, default 0
+        Seed of the axes.
+
+    Returns
+    -------
+    ndarray of shape (F, 2, 3)
+        ``R_f E_f`` for random rotations ``E_f`` of ``degrees``.
+    """
+    rng = np.random.default_rng(seed)
+    axes = rng.normal(size=(len(rotations), 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    turn = Rotation.from_rotvec(np.radians(degrees) * axes).as_matrix()
+    full = np.concatenate([rotations, np.cross(rotations[:, 0], rotations[:, 1])[:, None]], 1)
+    return (full @ turn)[:, :2]

@@ -10,18 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from moju_core import SolverParams, reconstruct, solver
 from moju_core.cameras.smoothing import is_ordered_path, smooth_rotations
-from moju_core.datasets import make_sequence
+from moju_core.datasets import make_sequence, perturb_rotations
 from moju_core.metrics import evaluate, rotation_errors_deg
-
-
-def _jitter(rotations: np.ndarray, degrees: float, seed: int) -> np.ndarray:
-    """Each rotation turned by ``degrees`` about its own random axis."""
-    rng = np.random.default_rng(seed)
-    axes = rng.normal(size=(len(rotations), 3))
-    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    turn = Rotation.from_rotvec(np.radians(degrees) * axes).as_matrix()
-    full = np.concatenate([rotations, np.cross(rotations[:, 0], rotations[:, 1])[:, None]], 1)
-    return (full @ turn)[:, :2]
 
 
 @pytest.mark.parametrize("name", ["face1", "face3", "face4", "paper", "body-osc", "flag-osc"])
@@ -35,7 +25,7 @@ def test_a_smooth_camera_path_is_returned_unchanged(name):
 @pytest.mark.parametrize("name", ["face3", "body-turn"])
 def test_jitter_of_one_degree_per_frame_is_mostly_removed(name):
     truth = make_sequence(name, n_points=50, seed=4).rotations
-    given = _jitter(truth, 1.0, seed=5)
+    given = perturb_rotations(truth, 1.0, seed=5)
     smoothed, weight = smooth_rotations(given)
     assert weight > 0.0
     before = rotation_errors_deg(given, truth).mean()
@@ -61,7 +51,7 @@ def test_the_solver_smooths_jittery_given_rotations_and_gains_from_it(monkeypatc
     """A face (40 frames) with its true rotations turned by 1 degree per frame: e3D 0.10 as
     given, 0.037 once smoothed (the jitter misleads the temporal prior's choice)."""
     data = make_sequence("face3", n_frames=40, n_points=150, seed=10)
-    given = _jitter(data.rotations, 1.0, seed=110)
+    given = perturb_rotations(data.rotations, 1.0, seed=110)
     result, smoothed_error = _known_solve(data, given)
     assert result.diagnostics.plan.rotation_smoothing > 0.0
     monkeypatch.setattr(solver, "smooth_rotations", lambda rotations: (rotations, 0.0))
@@ -86,4 +76,4 @@ def test_views_in_no_particular_order_are_not_smoothed(n_frames, seed):
 
 def test_a_camera_path_with_jitter_is_still_a_path():
     truth = make_sequence("flag-osc", n_points=50, seed=0).rotations
-    assert is_ordered_path(_jitter(truth, 1.0, seed=1).reshape(len(truth), 6))
+    assert is_ordered_path(perturb_rotations(truth, 1.0, seed=1).reshape(len(truth), 6))
