@@ -40,32 +40,41 @@ def _numeric(value: ast.expr | None) -> bool:
     )
 
 
-def main() -> None:
-    root = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1]
-    functions, constants = [], 0
+def solver_constants(root: Path, excluded: tuple[str, ...] = NOT_SOLVER) -> list[str]:
+    """Module-level UPPER_CASE names bound to numbers in ``root/moju_core``, outside the
+    paths that contain one of ``excluded`` (one entry per binding)."""
+    names = []
     for path in sorted((root / "moju_core").rglob("*.py")):
-        name = path.relative_to(root).as_posix()
-        tree = ast.parse(path.read_text())
-        for node in ast.walk(tree):
-            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                functions.append((node.end_lineno - node.lineno + 1, f"{name}:{node.name}"))
-        if any(part in name for part in NOT_SOLVER):
+        if any(part in path.relative_to(root).as_posix() for part in excluded):
             continue
-        for node in tree.body:
+        for node in ast.parse(path.read_text()).body:
             if isinstance(node, ast.Assign):
                 targets, value = node.targets, node.value
             elif isinstance(node, ast.AnnAssign):
                 targets, value = [node.target], node.value
             else:
                 continue
-            for target in targets:
-                upper = isinstance(target, ast.Name) and re.fullmatch(
-                    r"_?[A-Z][A-Z0-9_]*", target.id
-                )
-                constants += bool(upper and _numeric(value))
+            names += [
+                target.id
+                for target in targets
+                if isinstance(target, ast.Name)
+                and re.fullmatch(r"_?[A-Z][A-Z0-9_]*", target.id)
+                and _numeric(value)
+            ]
+    return names
+
+
+def main() -> None:
+    root = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1]
+    functions = []
+    for path in sorted((root / "moju_core").rglob("*.py")):
+        name = path.relative_to(root).as_posix()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                functions.append((node.end_lineno - node.lineno + 1, f"{name}:{node.name}"))
     for lines, name in sorted(functions, reverse=True)[:3]:
         print(f"{lines:4d} lines  {name}")
-    print(f"named numeric constants on the solver path: {constants}")
+    print(f"named numeric constants on the solver path: {len(solver_constants(root))}")
 
 
 if __name__ == "__main__":

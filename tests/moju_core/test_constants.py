@@ -7,53 +7,23 @@ perspective solve, with its kind and reason; a constant added without a row fail
 
 from __future__ import annotations
 
-import ast
 import re
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-#: Parts of moju_core outside the audited solver path (benchmarks/structure_metrics.py's,
-#: plus the camera estimators and the perspective solve, which have their own design).
-NOT_AUDITED = (
-    "datasets/",
-    "io/",
-    "footage/",
-    "cameras/",
-    "perspective.py",
-    "ply.py",
-    "result.py",
-    "errors.py",
-    "file_types.py",
-)
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from structure_metrics import NOT_SOLVER  # noqa: E402
+from structure_metrics import solver_constants as _solver_constants  # noqa: E402
 
-
-def _numeric(value: ast.expr | None) -> bool:
-    return value is not None and any(
-        isinstance(node, ast.Constant)
-        and isinstance(node.value, (int, float))
-        and not isinstance(node.value, bool)
-        for node in ast.walk(value)
-    )
+#: Beyond what benchmarks/structure_metrics.py leaves out of the solver path: the camera
+#: estimators and the perspective solve, which have their own design.
+NOT_AUDITED = (*NOT_SOLVER, "cameras/", "perspective.py")
 
 
 def solver_constants() -> set[str]:
     """The module-level UPPER_CASE names bound to numbers on the audited solver path."""
-    names = set()
-    for path in sorted((ROOT / "moju_core").rglob("*.py")):
-        if any(part in path.relative_to(ROOT).as_posix() for part in NOT_AUDITED):
-            continue
-        for node in ast.parse(path.read_text()).body:
-            if isinstance(node, ast.Assign):
-                targets, value = node.targets, node.value
-            elif isinstance(node, ast.AnnAssign):
-                targets, value = [node.target], node.value
-            else:
-                continue
-            for target in targets:
-                if isinstance(target, ast.Name) and re.fullmatch(r"_?[A-Z][A-Z0-9_]*", target.id):
-                    if _numeric(value):
-                        names.add(target.id)
-    return names
+    return set(_solver_constants(ROOT, NOT_AUDITED))
 
 
 def documented_constants() -> set[str]:
