@@ -505,21 +505,22 @@ def _run(solve: _Solve, estimate: cameras.CameraEstimate, report: _Reporter) -> 
             solve.tracks, estimate.rotations, solve.params, hook, solve.fitted
         )
     loop_cameras = admm.LoopCameras(estimate.rotations, estimate.refine)
-    out = admm.run(
-        solve.tracks, loop_cameras, solve.params, solve.term, features=solve.features, hook=hook
-    )
-    if solve.weigh_by_discrepancy:
 
-        def again(params: SolverParams, previous: admm.LoopOutput) -> admm.LoopOutput:
-            nonlocal done
+    def again(params: SolverParams, term: DataTerm, previous: admm.LoopOutput | None):
+        """One more loop, its progress counted on from the previous loop's."""
+        nonlocal done
+        if previous is not None:
             done += previous.n_iter
             report.expected = done + defaults.expected_iterations(params)
-            return admm.run(
-                solve.tracks, loop_cameras, params, solve.term, features=solve.features,
-                hook=hook,
-            )  # fmt: skip
+        return admm.run(
+            solve.tracks, loop_cameras, params, term, features=solve.features, hook=hook
+        )
 
-        out = _weigh_by_discrepancy(out, solve, again)
+    out = again(solve.params, solve.term, None)
+    if solve.weigh_by_discrepancy:
+        out = _weigh_by_discrepancy(
+            out, solve, lambda params, last: again(params, solve.term, last)
+        )
     if solve.fallback is not None and beyond(out.shapes, solve.term.limit):
         warnings.warn(
             "the exact fit of the observed entries threw hidden entries far off the "
@@ -528,16 +529,7 @@ def _run(solve: _Solve, estimate: cameras.CameraEstimate, report: _Reporter) -> 
             RuntimeWarning,
             stacklevel=4,
         )
-        done = out.n_iter
-        report.expected = done + defaults.expected_iterations(solve.params)
-        out = admm.run(
-            solve.tracks,
-            loop_cameras,
-            solve.params,
-            solve.fallback,
-            features=solve.features,
-            hook=hook,
-        )
+        out = again(solve.params, solve.fallback, out)
     return out
 
 
