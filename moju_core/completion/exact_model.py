@@ -34,13 +34,13 @@ EXACT_RIDGE = 1e-9
 EXACT_CHECK_EVERY = 5
 EXACT_PATIENCE = 20
 #: Misfit (relative to the entries' mean square) at which :func:`_alternate` takes the fit as
-#: exact: where ALS levels off on exactly low-rank tracks (1e-13 to 1e-12), and below what
-#: tracks whose spectrum decays without a gap reach at a high rank.
+#: exact: above the rounding level ALS reaches on exactly low-rank tracks, below the misfit
+#: of tracks off a low-rank model by 1e-6 of their RMS (1e-12), which are not exact.
 EXACT_FIT_MISFIT = 1e-13
 #: Fraction of the selected points set aside to test :func:`exact_model`, and the largest
 #: mean squared error at their held-out entries, relative to the tracks' mean square, for
-#: which the model is taken as exact (1e-5 of the RMS): exactly low-rank tracks reach
-#: 1e-12 to 1e-16 there, tracks whose spectrum decays without a gap 1e-9 and more.
+#: which the model is taken as exact (1e-5 of the RMS): a model whose hidden entries are
+#: fitted as data must predict them as closely as rounding allows exactly low-rank tracks.
 EXACT_TEST_FRACTION = 0.1
 EXACT_MODEL_ERROR = 1e-10
 #: Well-seen points (at most) on which :func:`exact_model` fits and tests the model, and the
@@ -50,10 +50,11 @@ EXACT_MODEL_ERROR = 1e-10
 EXACT_POINTS = 500
 EXACT_CANDIDATES = 2
 #: :func:`_trimmed`: a point sees every direction of an orthonormal basis on its observed rows
-#: when their smallest singular value is at least this, and a drop of the coefficients'
-#: singular values by this factor marks where the spare directions begin (between a W's own
-#: directions the steps are 0.1-1, to its spare ones 1e-3 and less; each size is kept only
-#: if ALS then fits exactly).
+#: when their smallest singular value is at least this, far above the square root of
+#: :data:`EXACT_RIDGE` (3e-5), below which the ridge, not the data, sets a coefficient; and a
+#: drop of the coefficients' singular values by :data:`SPARE_GAP` marks where the spare
+#: directions begin (between a W's own directions the steps are 0.1-1, to its spare ones
+#: 1e-3 and less; each size is kept only if ALS then fits exactly).
 VISIBLE_DIRECTIONS = 1e-2
 SPARE_GAP = 0.1
 #: Fewer well-seen points than this many test points' worth (sparse markers: 41 on face4) do
