@@ -45,7 +45,9 @@ from moju_core.spectrum import Spectrum, noise_variance, spectrum
 __all__ = ["AUTO_MARGIN", "CameraEstimate", "estimate_cameras"]
 
 #: ``"auto"`` takes the windowed rotations when their deformation over three frames (beyond
-#: the noise) is below this fraction of the intersection rotations'.
+#: the noise) is below this fraction of the intersection rotations': a clear margin, since
+#: rotations fitted rigidly to short windows absorb part of the deformation and so look more
+#: rigid than they are.
 AUTO_MARGIN = 1.0 / 3.0
 
 

@@ -40,15 +40,14 @@ from moju_core.spectrum import RANK_FLOOR, Spectrum, significant_rank, spectrum
 __all__ = ["intersection_estimate", "intersection_rotations"]
 
 # Dai's trace relaxation only provides starting points (the joint fit then converges to
-# rounding level), so a moderate ADMM tolerance is enough: 1e-4 .. 1e-8 gave the same final
-# rotations on the project's sequences, and 1e-8 cost up to 1 s of iterations.
+# rounding level), so a moderate ADMM tolerance and iteration budget are enough.
 _ADMM_TOL = 1e-6
 _ADMM_MAX_ITER = 2000
-# Largest number of directions of W the joint fit works in (H is 3n x 3n).
+# Largest number of directions of W the joint fit works in (H is 3n x 3n): a cost bound.
 _MAX_FIT_RANK = 30
 # Starts of the joint fit's multi-start search: random 3-dim subspaces of the top
 # _SUBSPACE_WIDTH eigenvectors of the relaxation's Q (besides its top-3 factor, the previous
-# number of triples' fit and the rigid estimate).
+# number of triples' fit and the rigid estimate): a search budget against wrong minima.
 _SUBSPACE_STARTS = 6
 _SUBSPACE_WIDTH = 6
 # Q from the convex relaxation must have a clear third eigenvalue: lambda_3 >= this *

@@ -52,7 +52,8 @@ __all__ = [
 #: COLMAP's default focal length, in units of the larger image side (1.2 x max(width, height)
 #: pixels): a field of view of about 45 degrees along that side.
 DEFAULT_FOCAL_FACTOR = 1.2
-#: Largest width or height accepted for a frame size, in pixels.
+#: Largest width or height accepted for a frame size, in pixels: an input limit beyond any
+#: camera's sensor, so that a larger number is refused as a mistake.
 MAX_FRAME_SIDE = 65_536
 #: Largest intrinsics text read, in bytes: three lines of three numbers and comments.
 MAX_INTRINSICS_BYTES = 64 * 1024

@@ -61,11 +61,9 @@ __all__ = [
 #: Fewest tracks a group needs: a plane needs 3, the spare ones give its noise some room.
 MIN_GROUP_SIZE = 8
 
-#: Groups of :func:`plane_rotations` when not given. Chosen on the design seeds (0-2) of
-#: flag-osc, flag-turn and bumps-osc at 0-5.5 % noise, 1,500 points (mean rotation error of
-#: flag-osc noise-free: 5.3 degrees with 1 group, 4.4 with 4, 10.5 with 10; flag-turn 4.9,
-#: 3.8, 3.9; bumps-osc 9.1, 9.2, 8.9) and confirmed on the held-out seeds 10-13 (flag-osc
-#: 28.0, 20.8, 17.5; flag-turn 3.0, 2.5, 2.7; docs/cameras.md).
+#: Groups of :func:`plane_rotations` when not given: several, so that the L1 fit can outvote
+#: the parts of a sheet that leave its plane, each of many tracks (the measurements are in
+#: docs/constants.md and docs/cameras.md).
 DEFAULT_GROUPS = 4
 
 #: Most IRLS iterations of :func:`group_weights` (it stops when the relative weights change by

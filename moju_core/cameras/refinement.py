@@ -58,7 +58,7 @@ def skew(w: np.ndarray) -> np.ndarray:
     return S
 
 
-# Generators of so(3): GENERATORS[j] = skew(e_j).
+# Generators of so(3): GENERATORS[j] = skew(e_j) (a definition, not a setting).
 GENERATORS = skew(np.eye(3))
 
 

@@ -31,7 +31,8 @@ __all__ = ["ORDER_TEST_Z", "SMOOTHING_WEIGHTS", "is_ordered_path", "smooth_rotat
 #: smallest weight the filter passes the highest frequency to within 2e-3 (no smoothing); at
 #: the largest it leaves a straight line over hundreds of frames. Eight steps per decade.
 SMOOTHING_WEIGHTS = np.logspace(-4.0, 8.0, 97)
-#: One-sided 1 % level of von Neumann's ratio test (the standard normal's 99th percentile).
+#: One-sided 1 % level of von Neumann's ratio test (the standard normal's 99th percentile):
+#: views in no particular order are taken for a path, and smoothed, once in a hundred at most.
 ORDER_TEST_Z = 2.326
 
 

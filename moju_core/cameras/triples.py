@@ -40,19 +40,15 @@ _SEARCH_TOL = 1e-6
 _SEARCH_MAX_ITER = 300
 # A fitted triple is "exact" when its misfit (with the singular values as weights, so that
 # white noise adds the same amount to every triple) is at most this many times the misfit
-# that the noise of W alone gives a triple, 2 F sigma^2 (see fit_triples). Measured after
-# the fit (which lowers it): 0.55-1.1 for the triples of exactly low-rank sequences with
-# 1-5.5 % noise; 1.4-3.4, and 0.97 in one case, for the second triple of the project's faces
-# with 1 % noise, which the noise cuts off from the weak directions it needs and whose
-# inclusion pulled the rotations 12-25 degrees. With 1.3 instead of 2 the faces kept
-# 0.6-1.3 degrees in 3 of 4 seeds and the low-rank sequences lost nothing (they gained at
-# 3-5.5 % noise, where a basis sinking into the noise was dropped); with 1.0 the same.
+# that the noise of W alone gives a triple, 2 F sigma^2 (see fit_triples): a margin over
+# the scatter of the noise's own misfit (about 0.5-1.1 of it after the fit), below the
+# misfit of triples that a deformation holds only approximately, which pull the rotations
+# away when they are fitted.
 _EXACT_NOISE_RATIO = 1.3
 # Without noise the noise floor is a rounding error and L-BFGS does not reach it: a triple is
-# also exact when its eigenvalue of H is below this fraction of the largest one. At the true
-# rotations of the project's noise-free faces the exact triples sit at 1e-16 and below, the
-# inexact ones at 9e-6 and above (1e-7 .. 1e-6 for the single nearly exact triple of the
-# 10-frame faces, where the noise test decides).
+# also exact when its eigenvalue of H is below this fraction of the largest one: between the
+# rounding level of exact triples (1e-16 and below) and the misfit of the nearly exact ones
+# of short sequences (1e-7 and above), where the noise test decides.
 _EXACT_RELATIVE = 1e-8
 # A fit whose k-th eigenvalue is this far below the (k + 1)-th fits k triples exactly. When
 # the fit continued from the relaxation's estimate is exact like that, other starting points

@@ -44,7 +44,7 @@ __all__ = [
 
 #: Window lengths (frames) tried by :func:`best_windowed_rotations`, besides the whole
 #: sequence. Short windows see less deformation, long ones more camera motion; which wins
-#: depends on the sequence (measured on the synthetic sheets: 8-15 frames of 60).
+#: depends on the sequence, so a range is tried and the most rigid result kept.
 WINDOW_LENGTHS = (6, 8, 10, 12, 15, 20, 25, 30, 40, 50)
 
 #: Frames per window of the rigidity measure: the shortest window with more equations
