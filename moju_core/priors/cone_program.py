@@ -84,6 +84,7 @@ def solve_max_depth_cone(
     n_rounds: int = 6,
     tol: float = 1e-3,
     outlier_price: float = np.inf,
+    lengths: np.ndarray | None = None,
 ) -> ConeSolution:
     """Solve the maximum-depth cone program on a (small) set of points.
 
@@ -110,6 +111,11 @@ def solve_max_depth_cone(
         Price of an edge exceeding its bound in the consistency rounds (same units as
         ``rigidity``; must exceed 1, the gain of stretching everything, to stay bounded);
         ``inf`` keeps the bounds hard.
+    lengths : ndarray of shape (E,), optional
+        Edge lengths fixed in advance (from a solve of other images of the same surface, in
+        its units), instead of unknowns scaled to mean 1. Given the lengths the images are
+        independent: :mod:`~moju_core.priors.key_images` solves them one at a time (pinned by
+        equality rows, the lengths would still couple several images in the factorisation).
 
     Returns
     -------
@@ -120,7 +126,9 @@ def solve_max_depth_cone(
     """
     start = time.perf_counter()
     pairs = _edge_image_pairs(rays, seen, edges)
-    program = _assemble_program(pairs, soft_bounds=bool(np.isfinite(outlier_price)))
+    program = _assemble_program(
+        pairs, soft_bounds=bool(np.isfinite(outlier_price)), lengths=lengths
+    )
     status, best = _solve_program(program, _first_round_cost(program))
     n_solves, shrink = 1, 0.0
     if best is not None and rigidity > 0 and n_rounds > 0:
@@ -222,8 +230,11 @@ class _ConeProgram:
         The pairs the cones come from.
     n_t, n_x : int
         ``T`` and the number of unknowns ``V + L + C + T``.
-    scale_row : sparse matrix of shape (1, n_x)
-        Sums the lengths (set equal to ``L``: mean edge length 1).
+    scale_row : sparse matrix of shape (1 or L, n_x)
+        Sums the lengths (set equal to ``L``: mean edge length 1), or picks each length when
+        they are fixed.
+    scale_rhs : ndarray of shape (1 or L,)
+        What ``scale_row @ x`` equals: ``L``, or the fixed lengths.
     nonneg_block : sparse matrix of shape (n_x, n_x)
         ``-I``: every unknown is nonnegative.
     soc_block : sparse matrix of shape (4 C, n_x)
@@ -234,6 +245,7 @@ class _ConeProgram:
     n_t: int
     n_x: int
     scale_row: sp.csr_matrix
+    scale_rhs: np.ndarray
     nonneg_block: sp.csr_matrix
     soc_block: sp.csr_matrix
 
@@ -254,8 +266,11 @@ class _ConeProgram:
         return slice(start, start + self.pairs.n_cones)
 
 
-def _assemble_program(pairs: _EdgeImagePairs, *, soft_bounds: bool) -> _ConeProgram:
-    """Build the shared rows: the length scale, nonnegativity and the cones of the pairs."""
+def _assemble_program(
+    pairs: _EdgeImagePairs, *, soft_bounds: bool, lengths: np.ndarray | None = None
+) -> _ConeProgram:
+    """Build the shared rows: the length scale (or the fixed ``lengths`` (E,)),
+    nonnegativity and the cones of the pairs."""
     n_var, n_len, n_cones = pairs.n_var, pairs.n_len, pairs.n_cones
     n_t = n_cones if soft_bounds else 0
     n_x = n_var + n_len + n_cones + n_t
@@ -269,12 +284,14 @@ def _assemble_program(pairs: _EdgeImagePairs, *, soft_bounds: bool) -> _ConeProg
     ]).tocsr()
     # Clarabel wants each cone's 4 rows together: interleave the 4 blocks of C rows.
     order = (np.arange(4)[None, :] * n_cones + np.arange(n_cones)[:, None]).ravel()
+    rows = np.zeros(n_len, dtype=np.int64) if lengths is None else np.arange(n_len)
     scale_row = sp.csr_matrix(
-        (np.ones(n_len), (np.zeros(n_len, dtype=np.int64), n_var + np.arange(n_len))),
-        shape=(1, n_x),
+        (np.ones(n_len), (rows, n_var + np.arange(n_len))),
+        shape=(1 if lengths is None else n_len, n_x),
     )
+    rhs = np.array([float(n_len)]) if lengths is None else np.asarray(lengths)[pairs.used_edges]
     return _ConeProgram(
-        pairs, n_t, n_x, scale_row, -sp.eye(n_x, format="csr"), -stacked[order]
+        pairs, n_t, n_x, scale_row, rhs, -sp.eye(n_x, format="csr"), -stacked[order]
     )
 
 
@@ -290,7 +307,7 @@ def _solve_program(
     import clarabel  # the interior-point solver, imported only when a program is solved
 
     blocks = [program.scale_row, program.nonneg_block]
-    cones = [clarabel.ZeroConeT(1)]
+    cones = [clarabel.ZeroConeT(program.scale_rhs.size)]
     n_nonneg = program.n_x
     if lower is not None:
         blocks.append(-lower)
@@ -300,7 +317,7 @@ def _solve_program(
     cones.extend([clarabel.SecondOrderConeT(4)] * program.pairs.n_cones)
     a_matrix = sp.vstack(blocks).tocsc()
     b_vector = np.zeros(a_matrix.shape[0])
-    b_vector[0] = program.pairs.n_len  # sum of lengths = E: mean edge length 1
+    b_vector[: program.scale_rhs.size] = program.scale_rhs
     settings = clarabel.DefaultSettings()
     settings.verbose = False
     solution = clarabel.DefaultSolver(

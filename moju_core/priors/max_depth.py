@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from moju_core.priors.cone_program import solve_max_depth_cone
 from moju_core.priors.dense_depth import interpolate_depths, refine_depths
+from moju_core.priors.key_images import solve_by_key_images
 from moju_core.priors.neighbour_graph import neighbour_edges, spread_anchors, visibility_of
 
 __all__ = ["SurfaceFit", "max_depth_edges", "max_depth_shapes"]
@@ -153,7 +153,7 @@ def max_depth_shapes(
     anchor_edges = neighbour_edges(rays[:, anchors], seen[:, anchors], k=k)
     seconds["graph"] = time.perf_counter() - t0
 
-    cone = solve_max_depth_cone(
+    cone = solve_by_key_images(
         rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity,
         outlier_price=outlier_price,
     )
