@@ -1,7 +1,7 @@
 """Every named numeric constant of the solver path is classified in docs/constants.md.
 
 The reference page docs/constants.md lists each module-level UPPER_CASE number of ``moju_core``
-outside its file formats, datasets, video front end, result types and perspective solve, with
+outside its file formats, datasets, video front end and result types, with
 its kind and reason; a constant added without a row fails here. A name bound in more than one
 module is listed once per module, as ``NAME`` (``path``), so that one row cannot stand for
 another module's constant.
@@ -19,9 +19,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from structure_metrics import NOT_SOLVER  # noqa: E402
 from structure_metrics import solver_constants as _solver_constants  # noqa: E402
 
-#: Beyond what benchmarks/structure_metrics.py leaves out of the solver path: the perspective
-#: solve, which has its own design.
-NOT_AUDITED = (*NOT_SOLVER, "perspective.py")
+#: What benchmarks/structure_metrics.py leaves out of the solver path.
+NOT_AUDITED = NOT_SOLVER
 
 
 def solver_constants() -> set[str]:
