@@ -17,9 +17,9 @@ solve instead
    regularise them, the anchor keeps the depths the tracks cannot set.
 
 Hidden entries have no ray depth: the prior's shape of a hidden point is taken from the
-nearest frame that sees it, moved with its frame's centroid. Costs: those of the prior
-(a cone program on a few hundred anchors, then O(F P k) per refinement iteration) and of the
-loop.
+nearest frame that sees it, moved by the rigid motion of the points both frames see. Costs:
+those of the prior (a cone program on a few hundred anchors, then O(F P k) per refinement
+iteration) and of the loop.
 """
 
 from __future__ import annotations
@@ -44,6 +44,10 @@ if TYPE_CHECKING:
 #: scale-normalised tracks: as much as the tracks themselves, so that neither the prior nor the
 #: low-rank model alone sets the depths.
 ANCHOR_WEIGHT = 1.0
+
+#: Relative size of the second singular value below which points lie on a line and fix no
+#: rotation (rounding level of a cross-covariance).
+RCOND_MOTION = 1e-9
 
 
 def uses_surface_prior(params: SolverParams, intrinsics: Intrinsics | None) -> bool:
@@ -108,26 +112,47 @@ def _unsolved_prior_message(status: str, rays: np.ndarray, intrinsics: Intrinsic
 
 def _fill_hidden(shapes: np.ndarray, known: np.ndarray) -> np.ndarray:
     """Points without a shape (``~known``, (F, P)) from the nearest frame that has them,
-    moved with the centroid of the frame's known points; O(F P)."""
+    moved by the object's rigid motion between the two frames (:func:`_rigid_motion` of the
+    points both frames have); O(F P) per pair of frames, one pair per frame and source.
+    """
     if known.all():
         return shapes
-    n_frames = known.shape[0]
     filled = shapes.copy()
-    frames = np.arange(n_frames)
-    for point in np.flatnonzero(~known.all(axis=0)):
-        seen = np.flatnonzero(known[:, point])
-        nearest = seen[np.abs(frames[:, None] - seen[None, :]).argmin(axis=1)]
-        hidden = np.flatnonzero(~known[:, point])
-        source = nearest[hidden]
-        shift = _centroids(shapes, known, hidden) - _centroids(shapes, known, source)
-        filled[hidden, point] = shapes[source, point] + shift
+    sources = _nearest_known(known)
+    for frame in range(known.shape[0]):
+        todo = ~known[frame] & (sources[frame] >= 0)
+        for source in np.unique(sources[frame, todo]):
+            points = todo & (sources[frame] == source)
+            both = known[frame] & known[source]
+            rotation, shift = _rigid_motion(shapes[source, both], shapes[frame, both])
+            filled[frame, points] = shapes[source, points] @ rotation.T + shift
     return filled
 
 
-def _centroids(shapes: np.ndarray, known: np.ndarray, frames: np.ndarray) -> np.ndarray:
-    """Centroid (n, 3) of the known points of each of ``frames``."""
-    seen = known[frames][:, :, None]
-    return np.where(seen, shapes[frames], 0.0).sum(axis=1) / seen.sum(axis=1)
+def _nearest_known(known: np.ndarray) -> np.ndarray:
+    """For each entry (F, P), the nearest frame in which its point is known (-1: none)."""
+    n_frames = known.shape[0]
+    frames = np.arange(n_frames)
+    nearest = np.full(known.shape, -1, dtype=np.int64)
+    for point in np.flatnonzero(~known.all(axis=0) & known.any(axis=0)):
+        seen = np.flatnonzero(known[:, point])
+        nearest[:, point] = seen[np.abs(frames[:, None] - seen[None, :]).argmin(axis=1)]
+    return nearest
+
+
+def _rigid_motion(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and translation (3,) taking the points ``source`` (n, 3) closest to
+    ``target`` (n, 3) in least squares (Kabsch, no reflection). Only the translation when
+    the points do not fix a rotation (fewer than three, or all on a line)."""
+    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
+    covariance = (source - source_mean).T @ (target - target_mean)
+    u, singular, vt = np.linalg.svd(covariance)
+    rotation = np.eye(3)
+    if len(source) >= 3 and singular[1] > RCOND_MOTION * singular[0]:
+        mirror = np.sign(np.linalg.det(u @ vt))
+        rotation = (u * [1.0, 1.0, mirror]) @ vt
+        rotation = rotation.T
+    return rotation, target_mean - rotation @ source_mean
 
 
 def refine_on_prior(

@@ -77,6 +77,23 @@ def test_a_hidden_point_follows_its_frame_from_the_nearest_frame_that_sees_it():
     assert np.allclose(filled[1, 0], [0.5, 0.0, 1.0])
 
 
+def test_a_hidden_point_turns_with_the_object():
+    # Frame 1 is frame 0 turned by 30 degrees about the vertical and moved; the point hidden
+    # in frame 1 must turn with the others, not only follow their centroid.
+    rng = np.random.default_rng(0)
+    first = rng.normal(size=(12, 3)) + [0.0, 0.0, 4.0]
+    angle = np.radians(30.0)
+    cos, sin = np.cos(angle), np.sin(angle)
+    turn = np.array([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]])
+    shapes = np.stack([first, first @ turn.T + [0.2, -0.1, 0.5]])
+    visibility = np.ones((2, 12), bool)
+    visibility[1, 3] = False
+    expected = shapes[1, 3].copy()
+    shapes[1, 3] = np.nan
+    filled = _fill_hidden(shapes, visibility)
+    np.testing.assert_allclose(filled[1, 3], expected, atol=1e-9)
+
+
 def test_the_rule_for_the_perspective_path():
     auto = SolverParams(rotations="auto")
     assert uses_surface_prior(auto, CAMERA)
