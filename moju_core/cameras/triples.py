@@ -50,10 +50,9 @@ _EXACT_NOISE_RATIO = 1.3
 # rounding level of exact triples (1e-16 and below) and the misfit of the nearly exact ones
 # of short sequences (1e-7 and above), where the noise test decides.
 _EXACT_RELATIVE = 1e-8
-# A fit whose k-th eigenvalue is this far below the (k + 1)-th fits k triples exactly. When
-# the fit continued from the relaxation's estimate is exact like that, other starting points
-# can only find other exact fits (several exist when the data do not determine the
-# rotations, e.g. 10 frames), so the search keeps it and does not move away from it.
+# Cost: a continued fit whose misfit is this far below the next eigenvalue of H holds its k
+# triples exactly, and other starts can reach at most another exact fit, so the multi-start
+# search (one L-BFGS run per start) is skipped for it.
 _LINEAGE_EXACT = 1e-4
 
 
