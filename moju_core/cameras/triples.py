@@ -9,7 +9,7 @@ rotations, ``Pi_f G_k = c_fk R_f`` (:class:`MotionFit`), by L-BFGS on SO(3)
 *exactly*, with no more misfit than the noise of W explains. Exactly low-rank sequences (K
 full xyz bases) have K such triples; realistic deformations have fewer (the synthetic faces
 have 2, whatever K), and fitting the inexact ones as well pulled the rotations 4-23 degrees
-away from the truth. The fit moves away from its start only for a clearly lower misfit, and a
+away from the truth. The fit moves away from its start only for a lower misfit, and a
 multi-start search guards against wrong minima under noise.
 """
 
@@ -50,13 +50,10 @@ _EXACT_NOISE_RATIO = 1.3
 # rounding level of exact triples (1e-16 and below) and the misfit of the nearly exact ones
 # of short sequences (1e-7 and above), where the noise test decides.
 _EXACT_RELATIVE = 1e-8
-# A fit whose k-th eigenvalue is this far below the (k + 1)-th fits k triples exactly. When
-# the fit continued from the relaxation's estimate is exact like that, other starting points
-# can only find other exact fits (several exist when the data do not determine the
-# rotations, e.g. 10 frames), so the search keeps it and does not move away from it.
+# Cost: a continued fit whose misfit is this far below the next eigenvalue of H holds its k
+# triples exactly, and other starts can reach at most another exact fit, so the multi-start
+# search (one L-BFGS run per start) is skipped for it.
 _LINEAGE_EXACT = 1e-4
-# Otherwise another start replaces it only if its misfit is lower by more than 10 %.
-_LINEAGE_MARGIN = 0.9
 
 
 class MotionFit:
@@ -214,11 +211,11 @@ def fit_triples(
     (the first from Dai et al.'s estimate, ``starts[0]``). The k-th triple is then tested:
     exact when its misfit under ``U S`` is at most ``_EXACT_NOISE_RATIO`` times what the noise
     of W explains, or at rounding level. If it is not, every start is searched too (unless
-    the continued fit is exact beyond doubt, ``_LINEAGE_EXACT``), a clearly lower misfit
-    (``_LINEAGE_MARGIN``) replaces the continued fit, and the test is repeated. The first
-    inexact triple ends the loop: fitting a triple that the data hold only approximately
-    pulls the rotations towards it (4-23 degrees on the project's faces). The last exact
-    fit is searched once more if it was not yet, and refined under ``U S``.
+    the continued fit is exact beyond doubt, ``_LINEAGE_EXACT``), a lower misfit replaces
+    the continued fit, and the test is repeated. The first inexact triple ends the loop:
+    fitting a triple that the data hold only approximately pulls the rotations towards it
+    (4-23 degrees on the project's faces). The last exact fit is searched once more if it
+    was not yet, and refined under ``U S``.
 
     Parameters
     ----------
@@ -256,8 +253,6 @@ def fit_triples(
     motion = U * np.sqrt(s[:n] / s[0])
     # White noise adds the same misfit to every triple of U S: the factor for the test.
     test_motion = U * (s[:n] / s[0])
-    # Misfits below this are rounding errors (the eigenvalues of H are at most 1).
-    tie = 1e-12
 
     def is_exact(rotations: np.ndarray, eigenvalues: np.ndarray, k: int) -> tuple[bool, float]:
         if eigenvalues[k - 1] <= _EXACT_RELATIVE * eigenvalues[-1]:
@@ -268,13 +263,14 @@ def fit_triples(
     def search(
         fit: MotionFit, rotations: np.ndarray, misfit: float, eigenvalues: np.ndarray
     ) -> tuple[np.ndarray, float, np.ndarray]:
-        """Replace a fit by the best fit from all starts if that is clearly lower."""
+        """Replace a fit by the best fit from all starts if its misfit is lower."""
         candidates = [
             _refine_rotations(fit, start, tol=_SEARCH_TOL, max_iter=_SEARCH_MAX_ITER)
             for start in starts
         ]
         candidate = min(candidates, key=lambda c: c[1])
-        if candidate[1] + tie < _LINEAGE_MARGIN * (misfit + tie):
+        # Strictly lower: an equal misfit keeps the continued fit.
+        if candidate[1] < misfit:
             return _refine_rotations(fit, candidate[0], tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER)
         return rotations, misfit, eigenvalues
 
