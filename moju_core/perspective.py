@@ -163,7 +163,8 @@ def refine_on_prior(
 ) -> tuple[np.ndarray, admm.LoopOutput, SolverParams, float]:
     """The MoJu loop in the camera frame, anchored to the prior's shapes (F, P, 3).
 
-    Returns the refined shapes (F, P, 3) in the prior's frame and units, the loop's output,
+    Returns the refined shapes (F, P, 3) in the prior's frame and units (hidden entries
+    moved from the nearest frame that sees them, as in :func:`prior_shapes`), the loop's output,
     the resolved parameters and the noise variance of the loop's tracks (relative to their
     mean square).
     """
@@ -195,4 +196,8 @@ def refine_on_prior(
     )
     out = admm.run(tracks, admm.LoopCameras(rotations), params, term, hook=hook)
     shapes = out.shapes.transpose(0, 2, 1) * scale + centroid
+    if observed is not None:
+        # The loop's low-rank model places hidden points worse than the rigid motion of the
+        # refined seen points does (docs/surface_prior.md): refill them from those.
+        shapes = _fill_hidden(np.where(visibility[:, :, None], shapes, np.nan), visibility)
     return shapes, out, params, float(noise)
