@@ -10,8 +10,9 @@ Pipeline of :func:`max_depth_shapes` (``F`` images, ``P`` points, ``k`` neighbou
 anchors):
 
 1. anchors: ``A`` points spread over the image by farthest-point sampling, ``O(A P)``;
-2. cone program on the anchors (:mod:`~moju_core.priors.cone_program`), cvxpy + Clarabel,
-   ``O(F A k)`` cones;
+2. cone program on the anchors (:mod:`~moju_core.priors.cone_program`, Clarabel),
+   ``O(F A k)`` cones; jointly on at most 30 key images, the others alone with their edge
+   lengths (:mod:`~moju_core.priors.key_images`);
 3. all points: local-plane interpolation of the anchors' inverse depths, ``O(F P (m + log A))``
    (:mod:`~moju_core.priors.dense_depth`);
 4. dense refinement: the same bounds on the ``k``-neighbour graph of all points as a penalty,
