@@ -159,6 +159,7 @@ def project_observed(
     observed: np.ndarray,
     *,
     source: np.ndarray | None = None,
+    hidden_weight: float = 0.0,
 ) -> np.ndarray:
     """Local reconstruction of points with unobserved frames, fitted on their observed frames.
 
@@ -183,6 +184,10 @@ def project_observed(
         their order; default ``trajectories`` at those points. The loop passes the values
         before the groups' projection: after it, a point's observed frames are in the span
         already and the fit returns the projection unchanged.
+    hidden_weight : float, default 0.0
+        Weight of the hidden frames in the fit (the observed ones weigh 1): a small weight
+        lets the current values there (held by the data and temporal steps) steer the
+        coefficients a little instead of not at all.
     """
     n_frames = observed.shape[0]
     partial = np.flatnonzero(~observed.all(axis=0))  # the m points with hidden frames
@@ -193,6 +198,8 @@ def project_observed(
     frames = bases.reshape(len(bases), n_frames, 3, p)
     frame_normals = (frames.transpose(0, 1, 3, 2) @ frames).reshape(len(bases), n_frames, p * p)
     weights = observed[:, partial].astype(np.float64)  # (F, m)
+    if hidden_weight:
+        weights += hidden_weight * (1.0 - weights)
     values = trajectories[:, partial] if source is None else source
     block = (values.reshape(n_frames, 3, -1) * weights[:, None, :]).reshape(3 * n_frames, -1)
     normals = np.empty((partial.size, p * p))

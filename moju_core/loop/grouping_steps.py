@@ -16,9 +16,12 @@ from moju_core.loop import clustering, grassmann, jump, lrr
 from moju_core.loop.loop_state import GroupCoefficients, LoopSettings, LoopState
 
 #: With hidden entries, step 9 fits each partly seen point in its group's subspace from its
-#: values before the projection (after it the fit would return the projection unchanged), on
-#: its observed frames only.
+#: values before the projection (after it the fit would return the projection unchanged),
+#: with its hidden frames weighted :data:`GROUP_FILL_HIDDEN_WEIGHT` against 1 for the seen ones.
 GROUP_FILL_FROM_UNPROJECTED = True
+#: Small against a seen frame's 1: the hidden values (held by the data and temporal steps)
+#: steer the fit of a point whose track ended, without outweighing what was seen.
+GROUP_FILL_HIDDEN_WEIGHT = 0.1
 
 
 def fit_group_subspaces(state: LoopState, p: int) -> None:
@@ -121,4 +124,5 @@ def reconstruct_groups(state: LoopState, regrouped: bool) -> None:
             state.bases,
             state.observed,
             source=source,
+            hidden_weight=GROUP_FILL_HIDDEN_WEIGHT if source is not None else 0.0,
         )

@@ -393,7 +393,7 @@ def test_noisy_occluded_tracks_gain_from_leaving_imprecise_completions_out(monke
     assert e3d(now.shapes, data.shapes) < 0.9 * e3d(before.shapes, data.shapes)
 
 
-def test_the_group_fill_fits_the_values_before_the_projection_on_the_observed_frames():
+def test_the_group_fill_fits_the_values_before_the_projection_with_hidden_frames_weighted():
     from moju_core.loop import grassmann
 
     rng = np.random.default_rng(4)
@@ -411,6 +411,12 @@ def test_the_group_fill_fits_the_values_before_the_projection_on_the_observed_fr
     )
     assert_allclose(out[:, :3], truth[:, :3], atol=1e-8)
     assert np.array_equal(out[:, 3:], np.zeros((3 * n_frames, n_points - 3)))
+    # A small weight on the hidden frames moves the fit towards their values, a little.
+    weighted = grassmann.project_observed(
+        np.zeros_like(truth), bounds, basis[None], observed, source=source, hidden_weight=0.1
+    )
+    moved = np.abs(weighted[:, :3] - truth[:, :3]).max()
+    assert 0 < moved < 5.0
 
 
 def _masked_loop_state(exact: bool):

@@ -114,7 +114,7 @@ def test_track_and_project_converges_to_the_rank_p_projection():
     assert np.all(grassmann.projection_distance_sq(bases, exact) < 1e-12)
 
 
-def test_project_observed_fits_each_point_in_its_own_groups_span_on_its_observed_frames():
+def test_project_observed_fits_each_point_in_its_own_groups_span_on_its_weighted_frames():
     rng = np.random.default_rng(7)
     n_frames, p = 9, 3
     bounds = np.array([0, 5, 9, 14, 20])  # the second group has no hidden frame
@@ -126,13 +126,17 @@ def test_project_observed_fits_each_point_in_its_own_groups_span_on_its_observed
     observed[:, 5:9] = True
     observed[:3] |= True  # every point keeps 3 frames: each fit is determined
     trajectories = rng.standard_normal((3 * n_frames, n_points))
-    out = grassmann.project_observed(trajectories.copy(), bounds, bases, observed)
+    out = grassmann.project_observed(
+        trajectories.copy(), bounds, bases, observed, hidden_weight=0.2
+    )
     for group in range(len(bounds) - 1):
         for j in range(bounds[group], bounds[group + 1]):
             if observed[:, j].all():
                 assert_allclose(out[:, j], trajectories[:, j], atol=0)
                 continue
-            # Least squares of the point's observed frames in its group's span, directly.
-            rows = observed[:, j].repeat(3)
-            c = np.linalg.lstsq(bases[group][rows], trajectories[rows, j], rcond=None)[0]
+            # Weighted least squares of the point's frames in its group's span, directly.
+            sqrt_w = np.sqrt(np.where(observed[:, j], 1.0, 0.2)).repeat(3)
+            c = np.linalg.lstsq(
+                sqrt_w[:, None] * bases[group], sqrt_w * trajectories[:, j], rcond=None
+            )[0]
             assert_allclose(out[:, j], bases[group] @ c, atol=1e-9)
