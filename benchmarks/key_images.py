@@ -31,7 +31,7 @@ from harness import RESULTS, provenance, table, write_json, write_markdown
 from tracking import perfect_tracks
 
 from moju_core.footage.tracking import track_frames
-from moju_core.priors import key_images, max_depth
+from moju_core.priors.max_depth import max_depth_shapes
 
 OUT = RESULTS / "surface_prior"
 VARIANTS = {"joint": 10**9, "keys 30": 30, "keys 10": 10}
@@ -56,21 +56,16 @@ def run_scene(kind: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
     rays, seen, truth = scene_rays(kind, seed, args)
     row: dict[str, Any] = {"kind": kind, "seed": seed, "frames": seen.shape[0],
                            "points": seen.shape[1]}  # fmt: skip
-    default = key_images.MAX_KEY_IMAGES
-    try:
-        for label, n_key in VARIANTS.items():
-            key_images.MAX_KEY_IMAGES = n_key
-            fit = max_depth.max_depth_shapes(rays, seen, seed=0)
-            shapes = np.nan_to_num(fit.shapes)
-            row[label] = {
-                "e3d_visible": visible_e3d(shapes, truth, seen),
-                "cone_s": fit.seconds["cone"],
-                "n_solves": fit.n_solves,
-                "status": fit.status,
-            }
-            print(kind, seed, label, row[label], flush=True)
-    finally:
-        key_images.MAX_KEY_IMAGES = default
+    for label, n_key in VARIANTS.items():
+        fit = max_depth_shapes(rays, seen, seed=0, n_key_images=n_key)
+        shapes = np.nan_to_num(fit.shapes)
+        row[label] = {
+            "e3d_visible": visible_e3d(shapes, truth, seen),
+            "cone_s": fit.seconds["cone"],
+            "n_solves": fit.n_solves,
+            "status": fit.status,
+        }
+        print(kind, seed, label, row[label], flush=True)
     return row
 
 

@@ -52,21 +52,27 @@ def key_images(seen: np.ndarray, edges: np.ndarray, n_key: int = MAX_KEY_IMAGES)
 
 
 def solve_by_key_images(
-    rays: np.ndarray, seen: np.ndarray, edges: np.ndarray, **options: float
+    rays: np.ndarray,
+    seen: np.ndarray,
+    edges: np.ndarray,
+    *,
+    n_key: int = MAX_KEY_IMAGES,
+    **options: float,
 ) -> ConeSolution:
     """The maximum-depth program of all images, by key images and fixed lengths.
 
     ``rays`` (F, P, 2), ``seen`` (F, P) bool, ``edges`` (E, 2) int and ``options``
     (``rigidity``, ``outlier_price``, ...) as in
     :func:`~moju_core.priors.cone_program.solve_max_depth_cone`, whose result this returns
-    for all images (``status`` the first that is not ``"Solved"``, counts summed).
+    for all images (``status`` the first that is not ``"Solved"``, counts summed). At most
+    ``n_key`` images (plus any needed to see every edge) are solved jointly.
     """
     n_frames = seen.shape[0]
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    if n_frames <= MAX_KEY_IMAGES:
+    if n_frames <= n_key:
         return solve_max_depth_cone(rays, seen, edges, **options)
     start = time.perf_counter()
-    keys = key_images(seen, edges, MAX_KEY_IMAGES)
+    keys = key_images(seen, edges, n_key)
     joint = solve_max_depth_cone(rays[keys], seen[keys], edges, **options)
     rest = np.setdiff1d(np.arange(n_frames), keys)
     known = np.isfinite(joint.lengths)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from moju_core.priors.dense_depth import interpolate_depths, refine_depths
-from moju_core.priors.key_images import solve_by_key_images
+from moju_core.priors.key_images import MAX_KEY_IMAGES, solve_by_key_images
 from moju_core.priors.neighbour_graph import neighbour_edges, spread_anchors, visibility_of
 
 __all__ = ["SurfaceFit", "max_depth_edges", "max_depth_shapes"]
@@ -105,6 +105,7 @@ def max_depth_shapes(
     rigidity: float = 30.0,
     outlier_price: float = np.inf,
     refine_iter: int = 60,
+    n_key_images: int = MAX_KEY_IMAGES,
 ) -> SurfaceFit:
     """Per-image 3D shapes from perspective tracks by the maximum-depth heuristic.
 
@@ -131,6 +132,9 @@ def max_depth_shapes(
         ``inf`` keeps the bounds hard, which measured better (docs/surface_prior.md).
     refine_iter : int, default 60
         Iterations of the dense refinement (0: interpolation only).
+    n_key_images : int, default :data:`~moju_core.priors.key_images.MAX_KEY_IMAGES`
+        Most images whose cone program is solved jointly; the others are solved alone with
+        their edge lengths (:func:`~moju_core.priors.key_images.solve_by_key_images`).
 
     Returns
     -------
@@ -157,6 +161,7 @@ def max_depth_shapes(
     cone = solve_by_key_images(
         rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity,
         outlier_price=outlier_price,
+        n_key=n_key_images,
     )
     seconds["cone"] = cone.seconds
 
