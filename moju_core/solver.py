@@ -11,8 +11,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import cameras, defaults, feasibility, perspective, pta, solve_plan
-from moju_core.cameras import projection
+from moju_core import cameras, defaults, feasibility, perspective, solve_plan
 from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.cameras.smoothing import smooth_rotations
 from moju_core.completion.completed import (
@@ -22,7 +21,7 @@ from moju_core.completion.completed import (
     trial_tracks,
 )
 from moju_core.errors import Cancelled, MeasurementError
-from moju_core.loop import admm, clustering, lrr
+from moju_core.loop import admm, closed_form, clustering, lrr
 from moju_core.loop.data_terms import DataTerm, beyond, choose_term
 from moju_core.loop.loop_state import fits_exactly
 from moju_core.params import SolverParams, as_params, rotation_method
@@ -35,8 +34,6 @@ from moju_core.result import (
     Progress,
     Result,
     RotationRigidity,
-    StopReason,
-    TrajectoryBasisFit,
 )
 from moju_core.solve_plan import SolvePlan
 from moju_core.spectrum import Spectrum, noise_variance, significant_rank, spectrum
@@ -501,8 +498,8 @@ def _run(solve: _Solve, estimate: cameras.CameraEstimate, report: _Reporter) -> 
         return False
 
     if solve.plan.method == "pta":
-        return _trajectory_basis(
-            solve.tracks, estimate.rotations, solve.params, hook, solve.fitted
+        return closed_form.solve_pta(
+            solve.tracks, estimate.rotations, solve.params.trajectory_bases, hook, solve.fitted
         )
     loop_cameras = admm.LoopCameras(estimate.rotations, estimate.refine)
 
@@ -669,45 +666,3 @@ def _resolve_rotation_method(params: SolverParams, given: bool) -> SolverParams:
             "set rotations='known' (or leave it unset) to use them, or do not pass them"
         )
     return params.model_copy(update={"rotations": method})
-
-
-def _trajectory_basis(
-    tracks: np.ndarray,
-    rotations: np.ndarray,
-    params: SolverParams,
-    hook: admm.IterationHook,
-    observed: np.ndarray | None = None,
-) -> admm.LoopOutput:
-    """Method ``pta``: one closed-form solve, reported as a single converged iteration.
-
-    The :class:`Result` contract holds as for the iterative methods: labels are all 0 (no
-    local groups), ``history`` has one entry per key (gap 0: there is no split to close; rho 0:
-    no penalty; the reprojection error and nuclear norm of the solution; 0 relabelled) and the
-    stop reason is ``"converged"``.
-    """
-    n_frames, _, n_points = tracks.shape
-    shapes, fit = pta.solve(tracks, rotations, params.trajectory_bases, observed)
-    residual = projection.project(rotations, shapes) - tracks
-    if observed is not None:
-        residual = residual[np.broadcast_to(observed[:, None, :], residual.shape)]
-    nuclear = float(np.linalg.svd(shapes.reshape(n_frames, 3 * n_points), compute_uv=False).sum())
-    hook(1, 0.0, 0.0)
-    history = {
-        "gap": 0.0,
-        "gap_shape": 0.0,
-        "gap_coefficients": 0.0,
-        "rho": 0.0,
-        "reprojection": float(np.sqrt(np.mean(residual**2))),
-        "nuclear_norm": nuclear,
-        "relabelled": 0.0,
-    }
-    return admm.LoopOutput(
-        shapes=shapes,
-        rotations=rotations,
-        labels=np.zeros(n_points, dtype=np.int64),
-        history={key: np.array([value]) for key, value in history.items()},
-        n_iter=1,
-        stop_reason=StopReason.CONVERGED,
-        n_groups=1,
-        trajectory_basis=TrajectoryBasisFit(rank=int(fit["rank"]), condition=fit["condition"]),
-    )

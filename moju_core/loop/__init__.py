@@ -10,5 +10,7 @@
   :mod:`~moju_core.loop.grouping_steps`, :mod:`~moju_core.loop.clustering` - the local
   trajectory subspaces as Grassmann points, the jump between the low- and
   high-dimensional manifolds, and the grouping of points;
-* :mod:`~moju_core.loop.leading_svd` - the truncated SVDs the loop needs.
+* :mod:`~moju_core.loop.leading_svd` - the truncated SVDs the loop needs;
+* :mod:`~moju_core.loop.closed_form` - method ``pta``, which needs no loop, in the loop's
+  output form.
 """
