@@ -19,11 +19,11 @@ the observed entries only (:class:`LowRank`):
   entries alone choose ranks too high for those patterns).
 
 The solver also uses the model beyond the filled W: the camera step factorises the model values
-of the well-seen points whose entries are all reliable (:func:`moju_core.solver._camera_points`),
-the noise level is read from the fully observed blocks (:func:`observed_noise_variance`), and
-the loop fits the hidden
-entries whose prediction is reliable (:meth:`LowRank.leverage`, :func:`trusted_entries`) as if
-they were observed.
+of the well-seen points whose entries are all reliable
+(:func:`moju_core.completion.completed.camera_points`), the noise level is read from the fully
+observed blocks (:func:`observed_noise_variance`), and the loop fits the hidden entries whose
+prediction is reliable (:meth:`LowRank.leverage`, :func:`trusted_entries`) as if they were
+observed.
 
 Cost: O(F P r^2) per ALS sweep and for the leverage, O(F P r) per EM sweep; nothing F x F or
 P x P is formed.
@@ -83,8 +83,8 @@ TRUSTED_LEVERAGE = 1000.0
 MAX_UNEXPLAINED = 0.05
 #: A point seen in at least this fraction of the frames is well seen: its column of the model
 #: is fitted on as many frames as it predicts. The camera step uses these points
-#: (:func:`moju_core.solver._camera_points`), and the entries the model does not determine
-#: are taken from them (:mod:`moju_core.completion.neighbours`).
+#: (:func:`moju_core.completion.completed.camera_points`), and the entries the model does not
+#: determine are taken from them (:mod:`moju_core.completion.neighbours`).
 WELL_SEEN = 0.5
 #: Frames per block of the noise estimate with missing data (:func:`observed_noise_variance`),
 #: the shorter only where no block of the longer qualifies: within 10 frames the deformations
