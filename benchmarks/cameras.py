@@ -10,10 +10,13 @@ the given noise levels: the mean rotation error after one global alignment
 ``A_{f+1} A_f^T (B_{f+1} B_f^T)^T`` for the estimated (A) and aligned true (B) rotations,
 median and maximum over the sequence. ``plane G1`` is :func:`moju_core.cameras.plane.
 plane_rotations` with one group (the ablation), ``plane G<n>`` with n groups.
+``plane+trajectory`` is ``plane G4`` refined by :func:`trajectory_rotations` (alternation with
+a DCT trajectory basis whose size is cross-validated over left-out frames; measured, not kept).
 
 ``e3d``: ``moju_core.reconstruct`` with the true rotations, with ``rotations="auto"`` (which
-refines windowed rotations in the loop), and with the plane rotations passed as
-``rotations="known"`` (not refined: the plane estimator is not wired into ``"auto"``).
+refines windowed rotations in the loop), and with the plane rotations (``plane G1``,
+``plane G4``, ``plane+trajectory``) passed as ``rotations="known"`` (not refined: the plane
+estimator is not wired into ``"auto"``); ``--solves`` picks which of them run.
 
 Seeds 0-2 were used to design the estimator; 10-13 are held out. Writes
 ``cameras_rotations.{json,md}`` / ``cameras_e3d.{json,md}`` into ``--output-dir``.
@@ -36,10 +39,11 @@ from threadpoolctl import threadpool_limits
 from moju_core import SolverParams, reconstruct
 from moju_core.cameras import estimate_cameras
 from moju_core.cameras.plane import plane_rotations
-from moju_core.cameras.refinement import project_to_stiefel
+from moju_core.cameras.refinement import fit_rotations_to_shapes, project_to_stiefel
 from moju_core.datasets import make_sequence
 from moju_core.metrics import evaluate, rotation_errors_deg
 from moju_core.preprocessing import normalise
+from moju_core.pta import dct_basis, trajectory_system
 from moju_core.spectrum import noise_variance, spectrum
 
 OUTPUT = RESULTS / "cameras"
@@ -48,7 +52,13 @@ SEQUENCES = (
 )  # fmt: skip
 DESIGN_SEEDS = (0, 1, 2)
 NOISES = (0.0, 0.01, 0.03, 0.055)
-ESTIMATORS = ("rigid", "windowed", "intersection", "auto", "plane G1", "plane G4", "plane G10")
+ESTIMATORS = (
+    "rigid", "windowed", "intersection", "auto", "plane G1", "plane G4", "plane G10",
+    "plane+trajectory",
+)  # fmt: skip
+#: The trajectory basis size of the last ``plane+trajectory`` estimate.
+CHOSEN_BASES = [0]
+SOLVES = ("known", "auto", "plane G1", "plane G4", "plane+trajectory")
 
 
 def load(name: str, seed: int, noise: float, n_points: int):
@@ -60,6 +70,143 @@ def load(name: str, seed: int, noise: float, n_points: int):
 def _complete(rows: np.ndarray) -> np.ndarray:
     rows = project_to_stiefel(rows)
     return np.concatenate([rows, np.cross(rows[:, 0], rows[:, 1])[:, None]], axis=1)
+
+
+# The trajectory refinement of the plane rotations (the ``plane+trajectory`` row). Measured
+# and not kept in moju_core (docs/cameras.md, "Tried and dropped"). From starting rotations
+# alternate (1) the point trajectories in the first K DCT vectors given the rotations
+# (Akhter et al.'s point trajectory approach, ``W = M A`` with ``M = R (Theta kron I_3)`` of
+# shape (2F, 3K), least squares for all P points at once) and (2) the rotations given the
+# shapes (:func:`fit_rotations_to_shapes`). K is chosen by K-fold cross-validation over frames:
+# every CV_FOLDS-th frame is left out, the alternation runs on the others, a left-out frame is
+# predicted by the trajectories evaluated there seen through the one rotation that fits it
+# best, and the K of least prediction error is used; the tracks' noise enters through that
+# error. Costs per alternation step: an SVD of the (2F, 3K) system O(F K^2), O(F K P) for the
+# coefficients and shapes, O(F P) for the rotation fit; the choice of K repeats the
+# alternation CV_FOLDS + 1 times per candidate K. Nothing grows with P^2 or F^2.
+
+#: Folds of the cross-validation over frames (every fifth frame left out in turn).
+CV_FOLDS = 5
+
+#: Alternation steps (trajectories, then rotations) per fit.
+ITERATIONS = 10
+
+
+def candidate_bases(n_frames: int, n_folds: int = CV_FOLDS) -> list[int]:
+    """Sizes K of the trajectory basis that cross-validation compares: 2, 3, 4, 6, 8, ...
+    (about 1.4 times apart) up to what the training frames of one fold determine
+    (``3K <= 2 F_train``, with room: ``3K <= F_train``)."""
+    train = n_frames - -(-n_frames // n_folds)
+    largest = max(2, train // 3)
+    grid, k = [], 2.0
+    while round(k) <= largest:
+        if not grid or round(k) != grid[-1]:
+            grid.append(round(k))
+        k *= np.sqrt(2.0)
+    return grid
+
+
+def _coefficients(tracks: np.ndarray, rotations: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """Least-squares trajectory coefficients A (3K, P) of ``W = M A``."""
+    n_frames, _, n_points = tracks.shape
+    system = trajectory_system(rotations, basis)
+    u, s, vt = np.linalg.svd(system, full_matrices=False)
+    keep = s > 1e-10 * s[0]
+    return (vt[keep].T / s[keep]) @ (u[:, keep].T @ tracks.reshape(2 * n_frames, n_points))
+
+
+def _shapes(basis: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """Shapes (F', 3, P) of trajectory coefficients (3K, P) at the frames of ``basis`` (F', K)."""
+    n_bases = basis.shape[1]
+    n_points = coefficients.shape[1]
+    flat = basis @ coefficients.reshape(n_bases, 3 * n_points)
+    return flat.reshape(basis.shape[0], 3, n_points)
+
+
+def alternate(
+    tracks: np.ndarray, rotations: np.ndarray, basis: np.ndarray, iterations: int = ITERATIONS
+) -> tuple[np.ndarray, np.ndarray]:
+    """Alternate trajectories and rotations from the given rotations.
+
+    Parameters
+    ----------
+    tracks : ndarray of shape (F, 2, P)
+        Centred tracks.
+    rotations : ndarray of shape (F, 2, 3)
+        Starting rotations.
+    basis : ndarray of shape (F, K)
+        Trajectory basis at these frames (rows of :func:`moju_core.pta.dct_basis`).
+
+    Returns
+    -------
+    rotations : ndarray of shape (F, 2, 3)
+    coefficients : ndarray of shape (3K, P)
+        Trajectory coefficients under the returned rotations.
+    """
+    for _ in range(iterations):
+        shapes = _shapes(basis, _coefficients(tracks, rotations, basis))
+        rotations = fit_rotations_to_shapes(rotations, tracks, shapes)
+    return rotations, _coefficients(tracks, rotations, basis)
+
+
+def cross_validation_error(
+    tracks: np.ndarray, rotations: np.ndarray, n_bases: int, n_folds: int = CV_FOLDS
+) -> float:
+    """Mean squared error of left-out frames predicted with ``n_bases`` trajectory bases.
+
+    Fold j leaves out the frames ``f = j mod n_folds``; the alternation runs on the others from
+    ``rotations``; each left-out frame's shape is the trajectories evaluated there, and its
+    rotation the one that projects that shape best onto its tracks (from its starting rotation).
+
+    Returns
+    -------
+    float
+        Squared error per entry of the tracks, in their squared units.
+    """
+    n_frames = tracks.shape[0]
+    basis = dct_basis(n_frames, n_bases)
+    folds = np.arange(n_frames) % n_folds
+    error = 0.0
+    for fold in range(n_folds):
+        test = folds == fold
+        _, coefficients = alternate(tracks[~test], rotations[~test], basis[~test])
+        shapes = _shapes(basis[test], coefficients)
+        fitted = fit_rotations_to_shapes(rotations[test], tracks[test], shapes)
+        error += float(np.sum((tracks[test] - fitted @ shapes) ** 2))
+    return error / tracks.size
+
+
+def trajectory_rotations(
+    W: np.ndarray, rotations: np.ndarray, n_bases: int | None = None
+) -> tuple[np.ndarray, int]:
+    """Rotations refined by alternation with a trajectory basis of cross-validated size.
+
+    Parameters
+    ----------
+    W : ndarray of shape (2F, P)
+        Tracks (translations are removed here), F >= 2 CV_FOLDS.
+    rotations : ndarray of shape (F, 2, 3)
+        Starting rotations (rows orthonormal), e.g. the plane estimate.
+    n_bases : int, optional
+        Size K of the trajectory basis; chosen by :func:`cross_validation_error` over
+        :func:`candidate_bases` when omitted.
+
+    Returns
+    -------
+    rotations : ndarray of shape (F, 2, 3)
+        Rows orthonormal, in the starting rotations' global frame.
+    n_bases : int
+        The K used.
+    """
+    W = np.asarray(W, dtype=np.float64)
+    n_frames = W.shape[0] // 2
+    tracks = (W - W.mean(axis=1, keepdims=True)).reshape(n_frames, 2, -1)
+    if n_bases is None:
+        grid = candidate_bases(n_frames)
+        errors = [cross_validation_error(tracks, rotations, k) for k in grid]
+        n_bases = grid[int(np.argmin(errors))]
+    refined, _ = alternate(tracks, rotations, dct_basis(n_frames, n_bases))
+    return refined, int(n_bases)
 
 
 def frame_to_frame_deg(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
@@ -74,9 +221,14 @@ def frame_to_frame_deg(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
 
 
 def estimate(W: np.ndarray, name: str, seed: int) -> np.ndarray:
-    """Rotations of centred tracks by one of :data:`ESTIMATORS`."""
+    """Rotations of centred tracks by one of :data:`ESTIMATORS` (``plane+trajectory``: the
+    trajectory basis size chosen is stored in ``CHOSEN_BASES``)."""
     if name.startswith("plane"):
         variance = noise_variance(spectrum(W).singular, W.shape)
+        if name == "plane+trajectory":
+            start = plane_rotations(W, n_groups=4, noise_variance=variance, seed=seed)
+            rotations, CHOSEN_BASES[0] = trajectory_rotations(W, start)
+            return rotations
         groups = int(name.split("G")[1])
         return plane_rotations(W, n_groups=groups, noise_variance=variance, seed=seed)
     with warnings.catch_warnings():
@@ -106,6 +258,8 @@ def rotation_unit(
                     "seconds": seconds,
                 }
             )  # fmt: skip
+            if estimator == "plane+trajectory":
+                rows[-1]["n_bases"] = CHOSEN_BASES[0]
     print(
         f"{name} s{seed} n{noise}: "
         + " ".join(f"{r['estimator']}={r['rotation_error_deg']:.1f}" for r in rows),
@@ -132,27 +286,33 @@ def _solve(data, rotations: np.ndarray | None, seed: int) -> dict[str, Any]:
     }
 
 
-def e3d_unit(name: str, seed: int, noise: float, n_points: int) -> dict[str, Any]:
+def e3d_unit(
+    name: str, seed: int, noise: float, n_points: int, solves: tuple[str, ...] = SOLVES
+) -> dict[str, Any]:
     data = load(name, seed, noise, n_points)
     W, _ = normalise(data.W)
-    variance = noise_variance(spectrum(W).singular, W.shape)
     row: dict[str, Any] = {
         "sequence": name, "seed": seed, "noise": noise, "held_out": seed not in DESIGN_SEEDS,
         "n_points": data.n_points, "n_frames": data.n_frames,
     }  # fmt: skip
-    row["known"] = _solve(data, data.rotations, seed)
-    row["auto"] = _solve(data, None, seed)
-    for groups in (1, 4):
+    for key in solves:
+        if key in ("known", "auto"):
+            row[key] = _solve(data, data.rotations if key == "known" else None, seed)
+            continue
         start = time.perf_counter()
-        R = plane_rotations(W, n_groups=groups, noise_variance=variance, seed=seed)
+        with threadpool_limits(limits=1):
+            R = estimate(W, key, seed)
         seconds = time.perf_counter() - start
         solved = _solve(data, R, seed)
         solved["seconds"] += seconds
         solved["rotation_error_deg"] = float(rotation_errors_deg(R, data.rotations).mean())
-        row[f"plane G{groups}"] = solved
+        step = frame_to_frame_deg(R, data.rotations)
+        solved["f2f_median_deg"], solved["f2f_max_deg"] = float(np.median(step)), float(step.max())
+        if key == "plane+trajectory":
+            solved["n_bases"] = CHOSEN_BASES[0]
+        row[key] = solved
     print(
-        f"{name} s{seed} n{noise}: known {row['known']['e3d']:.4f} auto {row['auto']['e3d']:.4f} "
-        f"plane G1 {row['plane G1']['e3d']:.4f} G4 {row['plane G4']['e3d']:.4f}",
+        f"{name} s{seed} n{noise}: " + " ".join(f"{k} {row[k]['e3d']:.4f}" for k in solves),
         flush=True,
     )
     return row
@@ -198,13 +358,14 @@ def rotation_tables(
 
 
 def e3d_tables(rows: list[dict[str, Any]]) -> list[str]:
-    keys = ("known", "auto", "plane G1", "plane G4")
+    keys = [k for k in SOLVES if k in rows[0]]
+    ratios = [k for k in keys if k.startswith("plane")] if "known" in keys else []
     header = ["sequence", "seed", "noise"] + [f"{k} e3D (rot deg)" for k in keys]
-    header += ["plane G1 / known"]
+    header += [f"{k} / known" for k in ratios]
     body = [
         [r["sequence"], f"{r['seed']}{'*' if r['held_out'] else ''}", f"{r['noise']:g}"]
         + [f"{r[k]['e3d']:.4f} ({r[k]['rotation_error_deg']:.1f})" for k in keys]
-        + [f"{r['plane G1']['e3d'] / r['known']['e3d']:.2f}"]
+        + [f"{r[k]['e3d'] / r['known']['e3d']:.2f}" for k in ratios]
         for r in rows
     ]
     summary = []
@@ -243,6 +404,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output-dir", type=Path, default=OUTPUT)
     parser.add_argument(
         "--estimators", nargs="+", default=list(ESTIMATORS), help="rotations: which to run"
+    )
+    parser.add_argument(
+        "--solves", nargs="+", default=list(SOLVES), choices=SOLVES, help="e3d: which to run"
     )
     parser.add_argument(
         "--merge",
@@ -288,7 +452,7 @@ def main(argv: list[str] | None = None) -> int:
             ],
         )
     else:
-        rows = parallel_map(e3d_unit, units, args.jobs)
+        rows = parallel_map(e3d_unit, [(*unit, tuple(args.solves)) for unit in units], args.jobs)
         write_json(args.output_dir / "cameras_e3d.json", meta, rows=rows)
         write_markdown(
             args.output_dir / "cameras_e3d.md",
@@ -298,7 +462,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"`moju_core.reconstruct`, method moju, {args.points:,} points (the body: 41 "
                 "markers). known: the true rotations; auto: the solver's own camera step "
                 '(`rotations="auto"`, windowed rotations refined in the loop); plane G1 / '
-                "G4: `moju_core.cameras.plane.plane_rotations` with 1 / 4 groups, passed as "
+                "G4: `moju_core.cameras.plane.plane_rotations` with 1 / 4 groups; "
+                "plane+trajectory: plane G4 refined by `trajectory_rotations` of "
+                "benchmarks/cameras.py; the plane rotations passed as "
                 '`rotations="known"` (not refined). Cells: e3D (per-frame Procrustes) and the '
                 "mean rotation error in degrees; seconds include the plane estimate.",
                 "",
