@@ -45,7 +45,7 @@ import numpy as np
 from harness import RESULTS, provenance, table, write_json, write_markdown
 
 from moju_core import SolverParams, defaults, reconstruct, solve_plan, solver
-from moju_core.completion import missing, window_subspace
+from moju_core.completion import exact_model, gaps, missing, neighbours, window_subspace
 from moju_core.datasets import make_sequence, occlusion_mask
 from moju_core.loop import loop_state
 from moju_core.metrics import e3d
@@ -226,6 +226,71 @@ RULES: tuple[Rule, ...] = (
         "0: the exact model tries no directions beyond the windows' largest rank",
         ((window_subspace, "EXTRA_DIRECTIONS", 0),),
         (FACE3_CLOSING, FACE3_CLOSING_EST, Case("cloth", 60, 300, occlusion=CLOSING)),
+    ),
+    Rule(
+        "well-seen",
+        "completion.missing.WELL_SEEN (exact model, neighbours, camera points)",
+        "0: every point seen in any frame counts as well seen",
+        ((missing, "WELL_SEEN", 0.0),),
+        (FACE3_CLOSING, PAPER_CLOSING_EST, MARKERS_CLOSING),
+    ),
+    Rule(
+        "neighbours",
+        "completion.neighbours.NEIGHBOURS",
+        "1: an undetermined entry takes the values of its single nearest neighbour",
+        ((neighbours, "NEIGHBOURS", 1),),
+        (
+            Case("face3", 99, 300, occlusion=LOST),
+            FACE3_CLOSING,
+            Case("body-osc", 350, 41, occlusion=LOST),
+        ),
+    ),
+    Rule(
+        "gap-decays",
+        "completion.gaps.DECAYS (gaps.CANDIDATES)",
+        "(0,): hidden entries are never moved towards the tracks",
+        ((gaps, "DECAYS", (0.0,)), (gaps, "CANDIDATES", (gaps.GapFill(),))),
+        (
+            Case("face3", 99, 300, noise=0.01, occlusion=CLOSING),
+            Case("paper", 60, 300, occlusion=CLOSING),
+            Case("face4", 350, 41, noise=0.01, occlusion=CLOSING),
+            Case("body-osc", 350, 41, occlusion=DROPOUT),
+        ),
+    ),
+    Rule(
+        "window-lengths",
+        "completion.window_subspace.WINDOW_LENGTHS",
+        "(12,): one window length, the shortest",
+        ((window_subspace, "WINDOW_LENGTHS", (12,)),),
+        (FACE3_CLOSING, FACE3_CLOSING_EST, Case("cloth", 60, 300, occlusion=CLOSING)),
+    ),
+    Rule(
+        "low-rank-fraction",
+        "completion.window_subspace.LOW_RANK_FRACTION",
+        "1: every window's block counts as showing a low rank",
+        ((window_subspace, "LOW_RANK_FRACTION", 1.0),),
+        (
+            FACE3_CLOSING,
+            FACE3_CLOSING_EST,
+            Case("cloth", 60, 300, occlusion=CLOSING),
+            Case("paper", 60, 300, occlusion=CLOSING),
+            Case("bumps-osc", 60, 300, occlusion=CLOSING),
+            Case("flag-osc", 60, 300, occlusion=CLOSING),
+        ),
+    ),
+    Rule(
+        "spare-gap",
+        "completion.exact_model.SPARE_GAP",
+        "0: the exact model's spare directions are never cut",
+        ((exact_model, "SPARE_GAP", 0.0),),
+        (FACE3_CLOSING, FACE3_CLOSING_EST, Case("cloth", 60, 300, occlusion=CLOSING)),
+    ),
+    Rule(
+        "pta-max-condition",
+        "defaults.PTA_MAX_CONDITION (trajectory_basis_size, unshrunk_values)",
+        "inf: any basis size counts as well conditioned",
+        ((defaults, "PTA_MAX_CONDITION", math.inf),),
+        (FACE3, FACE4, BUMPS, FLAG),
     ),
 )
 

@@ -60,7 +60,8 @@ STALL_ITERATIONS = 10
 #: is below 1e-5 of the top singular value and the shapes have settled.
 ROTATION_REFINE_RHO = 1e3
 #: Largest condition number of the PTA system accepted by the default basis size: errors in the
-#: tracks may grow at most tenfold in the trajectory coefficients.
+#: tracks may grow at most tenfold in the trajectory coefficients. Held-out check:
+#: benchmarks/notes/2026-12-06-rule-ablation.md.
 PTA_MAX_CONDITION = 10.0
 #: Deformation bases the S# step may leave unshrunk (:func:`unshrunk_values`), and the PTA basis
 #: size the cameras must support before it leaves out more than the mean shape. The nuclear

@@ -58,7 +58,9 @@ __all__ = [
     "sign_path",
 ]
 
-#: Fewest tracks a group needs: a plane needs 3, the spare ones give its noise some room.
+#: Fewest tracks a group needs: a plane needs 3, the spare ones give its noise some room
+#: (24 tracks of a turning flag: 3 groups 1.9 degrees off, 4 groups of 6 tracks 2.5; measured
+#: in docs/constants.md, where 12 tracks show the other side).
 MIN_GROUP_SIZE = 8
 
 #: Groups of :func:`plane_rotations` when not given: several, so that the L1 fit can outvote

@@ -54,7 +54,8 @@ EXACT_CANDIDATES = 2
 #: :data:`EXACT_RIDGE` (3e-5), below which the ridge, not the data, sets a coefficient; and a
 #: drop of the coefficients' singular values by :data:`SPARE_GAP` marks where the spare
 #: directions begin (between a W's own directions the steps are 0.1-1, to its spare ones
-#: 1e-3 and less; each size is kept only if ALS then fits exactly).
+#: 1e-3 and less; each size is kept only if ALS then fits exactly). SPARE_GAP at 0 changed no
+#: held-out solve (benchmarks/notes/2026-12-06-rule-ablation.md): its test guards it.
 VISIBLE_DIRECTIONS = 1e-2
 SPARE_GAP = 0.1
 #: Fewer well-seen points than this many test points' worth (sparse markers: 41 on face4) do

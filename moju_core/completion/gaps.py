@@ -54,6 +54,7 @@ class GapFill:
 
 
 #: Decay lengths (frames) the held-out choice combines; 0 first, so that it wins ties.
+#: Held-out check: benchmarks/notes/2026-12-06-rule-ablation.md.
 DECAYS = (0.0, 1.0, 3.0, 10.0, 30.0, np.inf)
 #: The corrections the held-out choice tries, in order; the first of equal error wins.
 CANDIDATES = tuple(GapFill(track, residual) for track in DECAYS for residual in DECAYS)

@@ -84,7 +84,8 @@ MAX_UNEXPLAINED = 0.05
 #: A point seen in at least this fraction of the frames is well seen: its column of the model
 #: is fitted on as many frames as it predicts. The camera step uses these points
 #: (:func:`moju_core.completion.completed.camera_points`), and the entries the model does not
-#: determine are taken from them (:mod:`moju_core.completion.neighbours`).
+#: determine are taken from them (:mod:`moju_core.completion.neighbours`). Held-out check:
+#: benchmarks/notes/2026-12-06-rule-ablation.md.
 WELL_SEEN = 0.5
 #: Frames per block of the noise estimate with missing data (:func:`observed_noise_variance`),
 #: the shorter only where no block of the longer qualifies: within 10 frames the deformations

@@ -57,6 +57,7 @@ __all__ = ["NEIGHBOURS", "borrow_values"]
 
 #: Neighbours whose columns are combined: a few times the three coordinates a point's
 #: neighbourhood must span; 4, 8 and 16 gave about the same error at hidden entries.
+#: Held-out check: benchmarks/notes/2026-12-06-rule-ablation.md.
 NEIGHBOURS = 8
 #: Candidates per frame searched, as a multiple of :data:`NEIGHBOURS` + 1 (a well-seen point is
 #: among its own candidates).

@@ -34,10 +34,12 @@ from moju_core.spectrum import RANK_FLOOR
 #: Window lengths tried, longest first, in frames; the windows start every third of a length.
 #: Every length whose windows all show a low rank gives a candidate. Longer windows see more of
 #: the deformation (a short window can miss a weak direction), but fewer points are observed
-#: in all of their frames.
+#: in all of their frames. Held-out check: benchmarks/notes/2026-12-06-rule-ablation.md.
 WINDOW_LENGTHS = (40, 30, 20, 12)
 #: A block shows a low rank when its exact rank (singular values above ``RANK_FLOOR`` of the
-#: largest) is at most this fraction of its smaller side.
+#: largest) is at most this fraction of its smaller side: noisy tracks then give no candidate,
+#: which spares the exact model seconds of ALS that its held-out test would refuse. Held-out
+#: check (and its cost on the cloth): benchmarks/notes/2026-12-06-rule-ablation.md.
 LOW_RANK_FRACTION = 0.5
 
 

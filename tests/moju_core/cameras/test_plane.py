@@ -6,6 +6,7 @@ import pytest
 
 from moju_core.cameras import estimate_cameras, plane
 from moju_core.cameras.refinement import project_to_stiefel
+from moju_core.datasets import make_sequence
 from moju_core.metrics import rotation_errors_deg
 
 D = np.diag([1.0, 1.0, -1.0])
@@ -131,6 +132,22 @@ def test_one_group_is_the_plain_rank_two_fit():
     assert np.allclose(np.abs(np.sum(basis * U[:, :2], axis=0)), 1.0)
     # More groups than the tracks allow fall back to fewer (8 tracks at least per group).
     assert plane.group_labels(W, 50).max() + 1 <= 100 // plane.MIN_GROUP_SIZE
+
+
+def test_few_tracks_are_cut_into_fewer_groups_with_tracks_to_spare_on_a_turning_flag():
+    """24 tracks of the turning flag (held-out seeds 301-306): the default 4 groups are cut
+    to 24 // MIN_GROUP_SIZE = 3 so that each group has tracks to spare beyond the 3 a plane
+    needs (mean rotation error 1.92 degrees); 4 groups of about 6 tracks (MIN_GROUP_SIZE 3 to
+    6) give 2.52. With
+    12 tracks the same bound leaves one group, and 4 groups of 3 did better there (2.81
+    against 3.35 degrees at 1 % noise): the bound is measured, not optimal
+    (benchmarks/results/rules/min_group_size/)."""
+    errors = []
+    for seed in range(301, 307):
+        data = make_sequence("flag-turn", n_points=24, seed=seed)
+        W = data.W - data.W.mean(axis=1, keepdims=True)
+        errors.append(rotation_errors_deg(plane.plane_rotations(W), data.rotations).mean())
+    assert np.mean(errors) < 2.2
 
 
 def test_noise_bounds_the_weights_and_the_estimate_degrades_gently():
