@@ -16,8 +16,9 @@ solve instead
    (:class:`moju_core.loop.data_terms.AnchoredTerm`): the low-rank model and the local groups
    regularise them, the anchor keeps the depths the tracks cannot set.
 
-Hidden entries have no ray depth: the prior's shape of a hidden point is taken from the
-nearest frame that sees it, moved by the rigid motion of the points both frames see. Costs:
+Hidden entries have no ray depth: the prior's shape of a hidden point is taken from the three
+nearest frames that see it, each moved by the rigid motion of the points both frames see, and
+the median of the three kept. Costs:
 those of the prior (a cone program on a few hundred anchors, then O(F P k) per refinement
 iteration) and of the loop.
 """
@@ -48,6 +49,10 @@ ANCHOR_WEIGHT = 1.0
 #: Relative size of the second singular value below which points lie on a line and fix no
 #: rotation (rounding level of a cross-covariance).
 RCOND_MOTION = 1e-9
+
+#: Frames a hidden point is taken from: the fewest whose median rejects one wrong source (a
+#: track is least reliable in the frames just before it is lost, where the surface turns away).
+FILL_SOURCES = 3
 
 
 def uses_surface_prior(params: SolverParams, intrinsics: Intrinsics | None) -> bool:
@@ -80,7 +85,8 @@ def prior_shapes(
 
     ``W`` (2F, P) in pixels, ``visibility`` (F, P) bool. A seen point the prior leaves
     without a depth (no neighbour seen with it in that image) is put on its ray at the median
-    depth of its image; a hidden point is taken from the nearest image that has it.
+    depth of its image; a hidden point is taken from the nearest images that have it
+    (:func:`_fill_hidden`).
     """
     n_frames, n_points = visibility.shape
     rays = intrinsics.normalise(W).reshape(n_frames, 2, n_points).transpose(0, 2, 1)
@@ -111,32 +117,51 @@ def _unsolved_prior_message(status: str, rays: np.ndarray, intrinsics: Intrinsic
 
 
 def _fill_hidden(shapes: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """Points without a shape (``~known``, (F, P)) from the nearest frame that has them,
-    moved by the object's rigid motion between the two frames (:func:`_rigid_motion` of the
-    points both frames have); O(F P) per pair of frames, one pair per frame and source.
+    """Points without a shape (``~known``, (F, P)) from the :data:`FILL_SOURCES` nearest frames
+    that have them, each moved by the object's rigid motion between the two frames
+    (:func:`_rigid_motion` of the points both frames have), and the median of those
+    positions, coordinate by coordinate (fewer sources where the point is seen in fewer
+    frames). O(F P) per pair of frames, at most ``FILL_SOURCES`` sources per frame and point.
     """
     if known.all():
         return shapes
     filled = shapes.copy()
-    sources = _nearest_known(known)
+    sources = _nearest_known(known, FILL_SOURCES)
     for frame in range(known.shape[0]):
-        todo = ~known[frame] & (sources[frame] >= 0)
-        for source in np.unique(sources[frame, todo]):
-            points = todo & (sources[frame] == source)
-            both = known[frame] & known[source]
-            rotation, shift = _rigid_motion(shapes[source, both], shapes[frame, both])
-            filled[frame, points] = shapes[source, points] @ rotation.T + shift
+        todo = np.flatnonzero(~known[frame] & (sources[0, frame] >= 0))
+        if todo.size:
+            moved = _moved_to(frame, todo, sources[:, frame, todo], shapes, known)
+            filled[frame, todo] = np.nanmedian(moved, axis=0)
     return filled
 
 
-def _nearest_known(known: np.ndarray) -> np.ndarray:
-    """For each entry (F, P), the nearest frame in which its point is known (-1: none)."""
+def _moved_to(
+    frame: int, points: np.ndarray, sources: np.ndarray, shapes: np.ndarray, known: np.ndarray
+) -> np.ndarray:
+    """``points`` (n,) as seen in each of their ``sources`` (S, n) (-1: none), moved into
+    ``frame`` by the rigid motion of the points known in both frames: (S, n, 3), NaN where
+    there is no source."""
+    moved = np.full(sources.shape + (3,), np.nan)
+    for rank, ranked in enumerate(sources):
+        for source in np.unique(ranked[ranked >= 0]):
+            both = known[frame] & known[source]
+            rotation, shift = _rigid_motion(shapes[source, both], shapes[frame, both])
+            chosen = ranked == source
+            moved[rank, chosen] = shapes[source, points[chosen]] @ rotation.T + shift
+    return moved
+
+
+def _nearest_known(known: np.ndarray, n_sources: int) -> np.ndarray:
+    """For each entry (F, P), the ``n_sources`` nearest frames in which its point is known,
+    nearest first, the earlier frame first at equal distance ((n_sources, F, P); -1: none)."""
     n_frames = known.shape[0]
     frames = np.arange(n_frames)
-    nearest = np.full(known.shape, -1, dtype=np.int64)
+    nearest = np.full((n_sources,) + known.shape, -1, dtype=np.int64)
     for point in np.flatnonzero(~known.all(axis=0) & known.any(axis=0)):
         seen = np.flatnonzero(known[:, point])
-        nearest[:, point] = seen[np.abs(frames[:, None] - seen[None, :]).argmin(axis=1)]
+        order = np.argsort(np.abs(frames[:, None] - seen[None, :]), axis=1, kind="stable")
+        ranked = seen[order[:, :n_sources]]  # (F, min(n_sources, seen))
+        nearest[: ranked.shape[1], :, point] = ranked.T
     return nearest
 
 
@@ -164,7 +189,7 @@ def refine_on_prior(
     """The MoJu loop in the camera frame, anchored to the prior's shapes (F, P, 3).
 
     Returns the refined shapes (F, P, 3) in the prior's frame and units (hidden entries
-    moved from the nearest frame that sees them, as in :func:`prior_shapes`), the loop's output,
+    moved from the nearest frames that see them, as in :func:`prior_shapes`), the loop's output,
     the resolved parameters and the noise variance of the loop's tracks (relative to their
     mean square).
     """

@@ -94,6 +94,30 @@ def test_a_hidden_point_turns_with_the_object():
     np.testing.assert_allclose(filled[1, 3], expected, atol=1e-9)
 
 
+def test_one_wrong_frame_before_a_point_is_lost_is_outvoted():
+    # A still object; the point is lost after frame 3 and was misplaced in frame 3, the frame
+    # just before (a track is least reliable where the surface turns away).
+    rng = np.random.default_rng(1)
+    still = rng.normal(size=(10, 3)) + [0.0, 0.0, 4.0]
+    shapes = np.repeat(still[None], 6, axis=0)
+    shapes[3, 0] += [0.0, 0.0, 2.0]
+    visibility = np.ones((6, 10), bool)
+    visibility[4:, 0] = False
+    shapes[4:, 0] = np.nan
+    filled = _fill_hidden(shapes, visibility)
+    np.testing.assert_allclose(filled[4:, 0], still[[0, 0]], atol=1e-9)
+
+
+def test_a_point_seen_in_one_frame_is_taken_from_it():
+    shapes = np.zeros((4, 5, 3))
+    shapes[..., 2] = 1.0 + np.arange(5)
+    visibility = np.ones((4, 5), bool)
+    visibility[1:, 2] = False
+    shapes[1:, 2] = np.nan
+    filled = _fill_hidden(shapes, visibility)
+    np.testing.assert_allclose(filled[1:, 2], [[0.0, 0.0, 3.0]] * 3)
+
+
 def test_the_rule_for_the_perspective_path():
     auto = SolverParams(rotations="auto")
     assert uses_surface_prior(auto, CAMERA)
