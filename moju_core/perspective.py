@@ -188,8 +188,9 @@ def refine_on_prior(
 ) -> tuple[np.ndarray, admm.LoopOutput, SolverParams, float]:
     """The MoJu loop in the camera frame, anchored to the prior's shapes (F, P, 3).
 
-    Returns the refined shapes (F, P, 3) in the prior's frame and units (hidden entries
-    moved from the nearest frames that see them, as in :func:`prior_shapes`), the loop's output,
+    Returns the refined shapes (F, P, 3) in the prior's frame and units (seen entries on their
+    viewing rays at the loop's depth, :func:`_onto_rays`; hidden entries moved from the nearest
+    frames that see them, as in :func:`prior_shapes`), the loop's output,
     the resolved parameters and the noise variance of the loop's tracks (relative to their
     mean square).
     """
@@ -220,9 +221,18 @@ def refine_on_prior(
         n_frames, n_points, observed, anchor=centred, weight=ANCHOR_WEIGHT
     )
     out = admm.run(tracks, admm.LoopCameras(rotations), params, term, hook=hook)
-    shapes = out.shapes.transpose(0, 2, 1) * scale + centroid
+    shapes = _onto_rays(out.shapes.transpose(0, 2, 1) * scale + centroid, prior)
     if observed is not None:
         # The loop's low-rank model places hidden points worse than the rigid motion of the
         # refined seen points does (docs/surface_prior.md): refill them from those.
         shapes = _fill_hidden(np.where(visibility[:, :, None], shapes, np.nan), visibility)
     return shapes, out, params, float(noise)
+
+
+def _onto_rays(shapes: np.ndarray, prior: np.ndarray) -> np.ndarray:
+    """Each point of ``shapes`` (F, P, 3) moved to the nearest point of its viewing ray, the
+    ray through the prior's point (F, P, 3; on its ray where seen), so that the loop sets
+    depths and the tracks alone set where the points are seen. O(F P)."""
+    rays = prior / prior[:, :, 2:3]
+    along = np.sum(shapes * rays, axis=2, keepdims=True) / np.sum(rays**2, axis=2, keepdims=True)
+    return along * rays

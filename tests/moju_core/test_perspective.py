@@ -56,6 +56,17 @@ def test_a_camera_gives_depth_where_the_orthographic_solve_stays_flat(sheet):
     assert out_of_plane_ratio(perspective.shapes, truth) > 0.6
 
 
+def test_seen_points_lie_on_their_viewing_rays(sheet):
+    # The tracks set where the points are seen and the solve only their depths: every seen
+    # point projects back onto its track.
+    rays, _ = sheet
+    noisy = rays + np.random.default_rng(2).normal(scale=0.5 / FOCAL, size=rays.shape)
+    W = _pixels(noisy)
+    shapes = _solve(W, intrinsics=CAMERA).shapes
+    projected = FOCAL * shapes[..., :2] / shapes[..., 2:3]
+    np.testing.assert_allclose(projected, FOCAL * noisy, atol=1e-9)
+
+
 def test_hidden_entries_are_solved_too(sheet):
     rays, truth = sheet
     visibility = np.ones(rays.shape[:2], bool)
