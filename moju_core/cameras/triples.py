@@ -197,6 +197,196 @@ def _refine_rotations(
     return rotations, misfit, eigenvalues
 
 
+def _noise_floor(shape: tuple[int, int], U: np.ndarray, s: np.ndarray) -> float:
+    """Misfit that the noise of W alone gives one triple of the test factor ``U S / s_1``.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Shape of W.
+    U : ndarray of shape (2F, n)
+        Leading left singular vectors of W.
+    s : ndarray
+        All singular values of W, decreasing.
+
+    Returns
+    -------
+    float
+        ``2 F sigma^2 / s_1^2`` (dimensionless: a misfit of the test factor), sigma^2 the
+        noise variance of W's entries beyond its n leading singular values.
+    """
+    n_frames, n = U.shape[0] // 2, U.shape[1]
+    sigma2 = noise_variance_beyond(s, shape, n)
+    # Misfit of one triple from the noise alone, in the units of the test factor: the 2 x 3
+    # block of a unit triple carries noise of total variance 2 sigma^2 / s_1^2 in every frame
+    # (fitting c_fk and the rotations absorbs a little of it: 0.6-1.2 times this was measured
+    # at the true rotations of exactly low-rank sequences).
+    return 2.0 * n_frames * sigma2 / s[0] ** 2
+
+
+def _is_exact(
+    test_motion: np.ndarray,
+    noise_floor: float,
+    rotations: np.ndarray,
+    eigenvalues: np.ndarray,
+    k: int,
+) -> tuple[bool, float]:
+    """Whether the k-th triple of a fit is exact (see :func:`fit_triples`).
+
+    Parameters
+    ----------
+    test_motion : ndarray of shape (2F, n)
+        The test factor ``U S / s_1``.
+    noise_floor : float
+        Its misfit from the noise alone (:func:`_noise_floor`).
+    rotations : ndarray of shape (F, 2, 3)
+        Fitted rotations.
+    eigenvalues : ndarray of shape (3n,)
+        Spectrum of H of the fit (of ``U S^(1/2)``), increasing.
+    k : int
+        Number of triples fitted.
+
+    Returns
+    -------
+    exact : bool
+    excess : float
+        Misfit of the k-th triple under the test factor over the noise floor (0 when the
+        triple is exact at rounding level).
+    """
+    if eigenvalues[k - 1] <= _EXACT_RELATIVE * eigenvalues[-1]:
+        return True, 0.0
+    excess = MotionFit(test_motion, k).evaluate(rotations)[2][k - 1] / max(noise_floor, 1e-300)
+    return excess <= _EXACT_NOISE_RATIO, excess
+
+
+def _search_starts(
+    fit: MotionFit,
+    starts: list[np.ndarray],
+    rotations: np.ndarray,
+    misfit: float,
+    eigenvalues: np.ndarray,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Replace a fit by the best fit from all starts if its misfit is lower.
+
+    Parameters
+    ----------
+    fit : MotionFit
+    starts : list of ndarray of shape (F, 2, 3)
+    rotations : ndarray of shape (F, 2, 3)
+        The fit to beat, with its ``misfit`` and its ``eigenvalues`` (shape (3n,)).
+
+    Returns
+    -------
+    rotations, misfit, eigenvalues
+        The refined best start's fit, or the given one.
+    """
+    candidates = [
+        _refine_rotations(fit, start, tol=_SEARCH_TOL, max_iter=_SEARCH_MAX_ITER)
+        for start in starts
+    ]
+    candidate = min(candidates, key=lambda c: c[1])
+    # Strictly lower: an equal misfit keeps the continued fit.
+    if candidate[1] < misfit:
+        return _refine_rotations(fit, candidate[0], tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER)
+    return rotations, misfit, eigenvalues
+
+
+def _add_exact_triples(
+    motion: np.ndarray,
+    test_motion: np.ndarray,
+    noise_floor: float,
+    max_triples: int,
+    starts: list[np.ndarray],
+) -> tuple[tuple[MotionFit, int, bool, np.ndarray, float, np.ndarray], int, float]:
+    """Fit k = 1, 2, ..., ``max_triples`` triples until the first inexact one.
+
+    Each k continues from the rotations of k - 1 (k = 1 from ``starts[0]``) and is searched
+    from every start when it is not exact and not exact beyond doubt (``_LINEAGE_EXACT``).
+
+    Parameters
+    ----------
+    motion : ndarray of shape (2F, n)
+        The factor fitted, ``U S^(1/2) / s_1^(1/2)``.
+    test_motion : ndarray of shape (2F, n)
+        The factor of the test, ``U S / s_1``.
+    noise_floor : float
+        Misfit of one triple of ``test_motion`` from the noise alone (:func:`_noise_floor`).
+    max_triples : int
+    starts : list of ndarray of shape (F, 2, 3)
+
+    Returns
+    -------
+    chosen : tuple
+        ``(fit, k, searched, rotations, misfit, eigenvalues)`` of the last exact k, or of
+        k = 1 when no triple is exact; ``searched`` tells whether the starts were searched.
+    n_exact : int
+    excess : float
+        Misfit of the first inexact triple over the noise floor (``inf`` when all are exact).
+    """
+    chosen = None
+    n_exact, excess, previous = 0, math.inf, starts[0]
+    for k in range(1, max_triples + 1):
+        fit = MotionFit(motion, k)
+        rotations, misfit, eigenvalues = _refine_rotations(
+            fit, previous, tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER
+        )
+        exact, excess = _is_exact(test_motion, noise_floor, rotations, eigenvalues, k)
+        searched = not exact and misfit > _LINEAGE_EXACT * eigenvalues[k]
+        if searched:
+            rotations, misfit, eigenvalues = _search_starts(
+                fit, starts, rotations, misfit, eigenvalues
+            )
+            exact, excess = _is_exact(test_motion, noise_floor, rotations, eigenvalues, k)
+        if chosen is None or exact:
+            # Without any exact triple, the best single-triple fit is kept.
+            chosen = (fit, k, searched, rotations, misfit, eigenvalues)
+        if not exact:
+            break
+        n_exact, previous = k, rotations
+    return chosen, n_exact, excess
+
+
+def _refine_under_test_factor(
+    fit: MotionFit, k: int, rotations: np.ndarray, test_motion: np.ndarray, s: np.ndarray
+) -> tuple[np.ndarray, MotionFit, np.ndarray]:
+    """The final fit of k > 1 triples refined under ``U S`` (k = 1 is kept as it is).
+
+    Parameters
+    ----------
+    fit : MotionFit
+        The fit of ``U S^(1/2)`` with k triples.
+    k : int
+    rotations : ndarray of shape (F, 2, 3)
+    test_motion : ndarray of shape (2F, n)
+        The factor ``U S / s_1``.
+    s : ndarray
+        All singular values of W, decreasing.
+
+    Returns
+    -------
+    rotations : ndarray of shape (F, 2, 3)
+    fit : MotionFit
+        The fit refined (of ``U S / s_1`` when k > 1).
+    weights : ndarray of shape (n,)
+        The column weights of its motion factor, ``U * weights``.
+    """
+    n = test_motion.shape[1]
+    # Dai et al.'s split weighs the weak directions up against the noise (by (s_1 / s_j)^1/2);
+    # the same fit with U S, under which noise adds the same to every triple, was the more
+    # accurate one in our tests (1-3.5 against 4-7 degrees at 3-5.5 % noise). Without noise
+    # an exact fit is exact under any weighting and stays where it is. A single triple is
+    # not refined so: it fixes the rotations only weakly along the other (nearly exact)
+    # triples, and U S, which makes the weak directions count less, let them drift (from 0.7
+    # to 17 degrees on face4 with 1 % noise).
+    weights = np.sqrt(s[:n] / s[0])
+    if k > 1:
+        fit, weights = MotionFit(test_motion, k), s[:n] / s[0]
+        rotations, _, _ = _refine_rotations(
+            fit, rotations, tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER
+        )
+    return rotations, fit, weights
+
+
 def fit_triples(
     shape: tuple[int, int],
     U: np.ndarray,
@@ -241,73 +431,20 @@ def fit_triples(
     weights : ndarray of shape (n,)
         The column weights of its motion factor, ``U * weights``.
     """
-    n_frames, n = U.shape[0] // 2, U.shape[1]
-    sigma2 = noise_variance_beyond(s, shape, n)
-    # Misfit of one triple from the noise alone, in the units of the test factor below: the
-    # 2 x 3 block of a unit triple carries noise of total variance 2 sigma^2 / s_1^2 in every
-    # frame (fitting c_fk and the rotations absorbs a little of it: 0.6-1.2 times this was
-    # measured at the true rotations of exactly low-rank sequences).
-    noise_floor = 2.0 * n_frames * sigma2 / s[0] ** 2
+    n = U.shape[1]
+    noise_floor = _noise_floor(shape, U, s)
     # Dai et al.'s split U S^(1/2) for the fit: its basins of attraction were the widest in
     # our tests (U S and, above all, U alone led the search into wrong minima far more often).
     motion = U * np.sqrt(s[:n] / s[0])
     # White noise adds the same misfit to every triple of U S: the factor for the test.
     test_motion = U * (s[:n] / s[0])
-
-    def is_exact(rotations: np.ndarray, eigenvalues: np.ndarray, k: int) -> tuple[bool, float]:
-        if eigenvalues[k - 1] <= _EXACT_RELATIVE * eigenvalues[-1]:
-            return True, 0.0
-        excess = MotionFit(test_motion, k).evaluate(rotations)[2][k - 1] / max(noise_floor, 1e-300)
-        return excess <= _EXACT_NOISE_RATIO, excess
-
-    def search(
-        fit: MotionFit, rotations: np.ndarray, misfit: float, eigenvalues: np.ndarray
-    ) -> tuple[np.ndarray, float, np.ndarray]:
-        """Replace a fit by the best fit from all starts if its misfit is lower."""
-        candidates = [
-            _refine_rotations(fit, start, tol=_SEARCH_TOL, max_iter=_SEARCH_MAX_ITER)
-            for start in starts
-        ]
-        candidate = min(candidates, key=lambda c: c[1])
-        # Strictly lower: an equal misfit keeps the continued fit.
-        if candidate[1] < misfit:
-            return _refine_rotations(fit, candidate[0], tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER)
-        return rotations, misfit, eigenvalues
-
-    chosen = None  # (fit, k, searched, rotations, misfit, eigenvalues) of the last exact k
-    n_exact, excess, previous = 0, math.inf, starts[0]
-    for k in range(1, max_triples + 1):
-        fit = MotionFit(motion, k)
-        rotations, misfit, eigenvalues = _refine_rotations(
-            fit, previous, tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER
-        )
-        exact, excess = is_exact(rotations, eigenvalues, k)
-        searched = not exact and misfit > _LINEAGE_EXACT * eigenvalues[k]
-        if searched:
-            rotations, misfit, eigenvalues = search(fit, rotations, misfit, eigenvalues)
-            exact, excess = is_exact(rotations, eigenvalues, k)
-        if chosen is None or exact:
-            # Without any exact triple, the best single-triple fit is kept.
-            chosen = (fit, k, searched, rotations, misfit, eigenvalues)
-        if not exact:
-            break
-        n_exact, previous = k, rotations
+    chosen, n_exact, excess = _add_exact_triples(
+        motion, test_motion, noise_floor, max_triples, starts
+    )
     fit, k, searched, rotations, misfit, eigenvalues = chosen
     if not searched and misfit > _LINEAGE_EXACT * eigenvalues[k]:
-        rotations, _, _ = search(fit, rotations, misfit, eigenvalues)
-    # Dai et al.'s split weighs the weak directions up against the noise (by (s_1 / s_j)^1/2);
-    # the same fit with U S, under which noise adds the same to every triple, was the more
-    # accurate one in our tests (1-3.5 against 4-7 degrees at 3-5.5 % noise). Without noise
-    # an exact fit is exact under any weighting and stays where it is. A single triple is
-    # not refined so: it fixes the rotations only weakly along the other (nearly exact)
-    # triples, and U S, which makes the weak directions count less, let them drift (from 0.7
-    # to 17 degrees on face4 with 1 % noise).
-    weights = np.sqrt(s[:n] / s[0])
-    if k > 1:
-        fit, weights = MotionFit(test_motion, k), s[:n] / s[0]
-        rotations, _, _ = _refine_rotations(
-            fit, rotations, tol=_REFINE_TOL, max_iter=_REFINE_MAX_ITER
-        )
+        rotations, _, _ = _search_starts(fit, starts, rotations, misfit, eigenvalues)
+    rotations, fit, weights = _refine_under_test_factor(fit, k, rotations, test_motion, s)
     return rotations, n_exact, excess, fit, weights
 
 
