@@ -177,6 +177,126 @@ def shown_basis_shapes(signal_rank: int) -> int:
     return math.ceil(signal_rank / 3)
 
 
+def _groups(params: SolverParams, n_points: int, p: int) -> tuple[int, int]:
+    """Default numbers of local groups and of clusters of groups.
+
+    Parameters
+    ----------
+    params : SolverParams
+        User parameters (``method``, ``n_groups``, ``n_clusters``).
+    n_points : int
+        P.
+    p : int
+        Subspace dimension of a group (resolved).
+
+    Returns
+    -------
+    n_groups : int
+        1 for ``bmm`` and ``pta``; else the user's, or one group per :data:`POINTS_PER_GROUP`
+        points (at most :data:`MAX_DEFAULT_GROUPS`; 1 below :data:`MIN_GROUPS`).
+    n_clusters : int
+        At most ``n_groups - 1`` when there are several groups.
+    """
+    if params.method in ("bmm", "pta"):
+        n_groups = 1
+    elif params.n_groups is not None:
+        n_groups = params.n_groups
+    else:
+        n_groups = min(MAX_DEFAULT_GROUPS, n_points // POINTS_PER_GROUP)
+        # Fewer points: smaller groups, but never below the minimum size.
+        if n_groups < MIN_GROUPS:
+            n_groups = min(MIN_GROUPS, n_points // (2 * min_group_size(p)))
+        if n_groups < MIN_GROUPS:
+            n_groups = 1
+    n_clusters = params.n_clusters or max(2, n_groups // 8)
+    if n_groups > 1:
+        n_clusters = min(n_clusters, n_groups - 1)
+    return n_groups, n_clusters
+
+
+def _betas(params: SolverParams, p: int, top_singular_value: float) -> tuple[float, float, float]:
+    """Default weights ``beta1``, ``beta2`` and ``beta3`` of the loop's objective.
+
+    Parameters
+    ----------
+    params : SolverParams
+        User parameters; the weights set there are kept.
+    p : int
+        Subspace dimension of a group (resolved).
+    top_singular_value : float
+        Largest singular value of the initial shape matrix ``S#`` (units of the
+        scale-normalised tracks).
+
+    Returns
+    -------
+    beta1, beta2, beta3 : float
+        By default ``beta1`` 1, ``beta2`` :data:`BETA2_RELATIVE` times ``top_singular_value``
+        (in its units) and ``beta3`` ``beta1 * p``.
+    """
+    beta2 = params.beta2 or BETA2_RELATIVE * top_singular_value
+    beta1 = params.beta1 or 1.0
+    # Keep kernel eigen-directions whose eigenvalue exceeds p / 2 (half the self-similarity of
+    # one subspace): LRR with a Frobenius error term shrinks the kernel's eigenvalues gamma by
+    # max(0, 1 - beta3 / (2 beta1 gamma)).
+    beta3 = params.beta3 or beta1 * p
+    return beta1, beta2, beta3
+
+
+def _unshrunk(
+    params: SolverParams,
+    free_mean_shape: bool,
+    rotations: np.ndarray | None,
+    noise: float,
+    signal_rank: int,
+) -> int:
+    """Default ``unshrunk_values`` (the user's when set).
+
+    Parameters
+    ----------
+    params : SolverParams
+    free_mean_shape : bool
+        Resolved ``free_mean_shape``.
+    rotations : ndarray of shape (F, 2, 3) or None
+        Camera rotations (needed for ``moju`` and ``sdg`` with a free mean shape).
+    noise : float
+        Estimated noise variance of the scale-normalised tracks.
+    signal_rank : int
+        Number of singular values of W above the noise; 0: unknown.
+
+    Returns
+    -------
+    int
+        :func:`unshrunk_values` for the local models on quiet tracks, else 1 with a free mean
+        shape and 0 without.
+    """
+    unshrunk = params.unshrunk_values
+    if unshrunk is None:
+        local_model = params.method in ("moju", "sdg") and free_mean_shape
+        if local_model and rotations is None:
+            raise ValueError("'moju' and 'sdg' need the rotations to derive unshrunk_values")
+        quiet = noise <= EXACT_DATA_NOISE
+        unshrunk = (
+            unshrunk_values(rotations, signal_rank)
+            if local_model and quiet
+            else int(bool(free_mean_shape))
+        )
+    return unshrunk
+
+
+def _trajectory_bases(params: SolverParams, rotations: np.ndarray | None) -> int | None:
+    """Default ``trajectory_bases``: :func:`trajectory_basis_size` for method ``pta`` when
+    unset, else the user's value (``None`` for the other methods).
+
+    ``rotations`` (ndarray of shape (F, 2, 3)) is needed only in the first case.
+    """
+    trajectory_bases = params.trajectory_bases
+    if params.method == "pta" and trajectory_bases is None:
+        if rotations is None:
+            raise ValueError("method 'pta' needs the rotations to derive trajectory_bases")
+        trajectory_bases = trajectory_basis_size(rotations)
+    return trajectory_bases
+
+
 def resolve(
     params: SolverParams,
     n_frames: int,
@@ -221,28 +341,10 @@ def resolve(
     """
     trajectory_length = 3 * n_frames
     p = params.subspace_dim or min(SUBSPACE_DIM, trajectory_length - 1)
-    if params.method in ("bmm", "pta"):
-        n_groups = 1
-    elif params.n_groups is not None:
-        n_groups = params.n_groups
-    else:
-        n_groups = min(MAX_DEFAULT_GROUPS, n_points // POINTS_PER_GROUP)
-        # Fewer points: smaller groups, but never below the minimum size.
-        if n_groups < MIN_GROUPS:
-            n_groups = min(MIN_GROUPS, n_points // (2 * min_group_size(p)))
-        if n_groups < MIN_GROUPS:
-            n_groups = 1
-    n_clusters = params.n_clusters or max(2, n_groups // 8)
-    if n_groups > 1:
-        n_clusters = min(n_clusters, n_groups - 1)
+    n_groups, n_clusters = _groups(params, n_points, p)
     d_low = params.low_dim or min(trajectory_length - 1, 2 * p + 2)
     d_low = max(d_low, p)
-    beta2 = params.beta2 or BETA2_RELATIVE * top_singular_value
-    beta1 = params.beta1 or 1.0
-    # Keep kernel eigen-directions whose eigenvalue exceeds p / 2 (half the self-similarity of
-    # one subspace): LRR with a Frobenius error term shrinks the kernel's eigenvalues gamma by
-    # max(0, 1 - beta3 / (2 beta1 gamma)).
-    beta3 = params.beta3 or beta1 * p
+    beta1, beta2, beta3 = _betas(params, p, top_singular_value)
     # The deformation-only nuclear norm and the temporal prior are the project's additions to
     # the loop (docs/solver.md); bmm stays Dai et al.'s method unless asked otherwise. The
     # smoothness of moju and sdg is chosen from the data by moju_core.priors.smoothness and stays
@@ -251,28 +353,13 @@ def resolve(
     free_mean_shape = params.free_mean_shape
     if free_mean_shape is None:
         free_mean_shape = not baseline
-    unshrunk = params.unshrunk_values
-    if unshrunk is None:
-        local_model = params.method in ("moju", "sdg") and free_mean_shape
-        if local_model and rotations is None:
-            raise ValueError("'moju' and 'sdg' need the rotations to derive unshrunk_values")
-        quiet = noise <= EXACT_DATA_NOISE
-        unshrunk = (
-            unshrunk_values(rotations, signal_rank)
-            if local_model and quiet
-            else int(bool(free_mean_shape))
-        )
+    unshrunk = _unshrunk(params, free_mean_shape, rotations, noise, signal_rank)
     smoothness = params.smoothness
     if smoothness is None and baseline:
         smoothness = 0.0
-    trajectory_bases = params.trajectory_bases
-    if params.method == "pta" and trajectory_bases is None:
-        if rotations is None:
-            raise ValueError("method 'pta' needs the rotations to derive trajectory_bases")
-        trajectory_bases = trajectory_basis_size(rotations)
     return params.model_copy(
         update={
-            "trajectory_bases": trajectory_bases,
+            "trajectory_bases": _trajectory_bases(params, rotations),
             "subspace_dim": p,
             "n_groups": n_groups,
             "n_clusters": n_clusters,
