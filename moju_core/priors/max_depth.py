@@ -95,6 +95,83 @@ def max_depth_edges(
     return neighbour_edges(rays, visibility, k=k)
 
 
+def _dense_depths(
+    rays: np.ndarray,
+    seen: np.ndarray,
+    anchors: np.ndarray,
+    anchor_depths: np.ndarray,
+    *,
+    k: int,
+    refine_iter: int,
+    seconds: dict[str, float],
+) -> tuple[np.ndarray, float, int]:
+    """Depths of all points from the anchors' (steps 3 and 4 of the pipeline).
+
+    Parameters
+    ----------
+    rays : ndarray of shape (F, P, 2)
+        Normalised image coordinates, NaN where not seen.
+    seen : ndarray of shape (F, P), bool
+    anchors : ndarray of shape (A,), int64
+    anchor_depths : ndarray of shape (F, A)
+        The cone program's depths of the anchors.
+    k : int
+        Image neighbours per point of the dense graph.
+    refine_iter : int
+        Iterations of the dense refinement (0: interpolation only).
+    seconds : dict of str to float
+        Wall times (seconds): ``interpolate`` and ``refine`` are set, the dense graph's time
+        is added to ``graph``.
+
+    Returns
+    -------
+    depths : ndarray of shape (F, P)
+        In the unit of ``anchor_depths``, not yet masked or normalised.
+    violation : float
+        Mean relative excess of the dense edges over their bounds (0 without refinement).
+    n_edges : int
+        Edges of the dense neighbour graph.
+    """
+    violation = 0.0
+    t0 = time.perf_counter()
+    depths = interpolate_depths(rays, seen, anchors, anchor_depths)
+    seconds["interpolate"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    edges = neighbour_edges(rays, seen, k=k)
+    seconds["graph"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if refine_iter > 0:
+        depths, violation = refine_depths(rays, seen, edges, depths, anchors, n_iter=refine_iter)
+    seconds["refine"] = time.perf_counter() - t0
+    return depths, violation, len(edges)
+
+
+def _scaled_shapes(
+    rays: np.ndarray, seen: np.ndarray, depths: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Depths masked and at the global scale, and the shapes they give.
+
+    Parameters
+    ----------
+    rays : ndarray of shape (F, P, 2)
+    seen : ndarray of shape (F, P), bool
+    depths : ndarray of shape (F, P)
+        Depths along the rays, any scale.
+
+    Returns
+    -------
+    depths : ndarray of shape (F, P)
+        NaN where not seen or not positive; the mean of the others is 1.
+    shapes : ndarray of shape (F, P, 3)
+        ``depth * [x', y', 1]`` (same unit as ``depths``).
+    """
+    depths = np.where(seen & (depths > 0), depths, np.nan)
+    if np.any(np.isfinite(depths)):
+        depths = depths / np.nanmean(depths)  # the global scale: mean seen depth 1
+    q = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
+    return depths, depths[..., None] * q
+
+
 def max_depth_shapes(
     rays: np.ndarray,
     visibility: np.ndarray | None = None,
@@ -170,25 +247,11 @@ def max_depth_shapes(
         depths = cone.depths
         seconds["interpolate"] = seconds["refine"] = 0.0
     else:
-        t0 = time.perf_counter()
-        depths = interpolate_depths(rays, seen, anchors, cone.depths)
-        seconds["interpolate"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        edges = neighbour_edges(rays, seen, k=k)
-        seconds["graph"] += time.perf_counter() - t0
-        n_edges = len(edges)
-        t0 = time.perf_counter()
-        if refine_iter > 0:
-            depths, violation = refine_depths(
-                rays, seen, edges, depths, anchors, n_iter=refine_iter
-            )
-        seconds["refine"] = time.perf_counter() - t0
+        depths, violation, n_edges = _dense_depths(
+            rays, seen, anchors, cone.depths, k=k, refine_iter=refine_iter, seconds=seconds
+        )
 
-    depths = np.where(seen & (depths > 0), depths, np.nan)
-    if np.any(np.isfinite(depths)):
-        depths = depths / np.nanmean(depths)  # the global scale: mean seen depth 1
-    q = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
-    shapes = depths[..., None] * q
+    depths, shapes = _scaled_shapes(rays, seen, depths)
     seconds["total"] = time.perf_counter() - t_start
     return SurfaceFit(
         depths, shapes, anchors, cone.status, seconds, violation, n_edges,
