@@ -321,22 +321,9 @@ def _plan(
     n_frames, _, n_points = tracks.per_frame.shape
     user_beta2 = params.beta2
     rotations = estimate.rotations
-    initial = np.einsum("fji,fjp->fip", rotations, tracks.per_frame)
-    top = lrr.top_singular_value(initial.reshape(n_frames, 3 * n_points))
-    del initial  # (F, 3P): do not hold it through the loop
     derive_unshrunk = params.unshrunk_values is None
     signal_rank = tracks.signal_basis.shape[1]
-    n_bases = estimate.n_bases if estimate.n_bases is not None else params.n_bases
-    params = defaults.resolve(
-        params,
-        n_frames,
-        n_points,
-        top,
-        rotations=rotations,
-        noise=tracks.noise,
-        signal_rank=signal_rank,
-    )
-    params = params.model_copy(update={"n_bases": n_bases})
+    params = _resolved_params(tracks, estimate, params)
     completion = _completion_kind(completed)
     exact_data = solve_plan.exact_data(tracks.noise, completion, params.rotations)
     fitted = None if completed is None else completed.fitted
@@ -387,15 +374,52 @@ def _plan(
     features = None
     if params.method not in ("bmm", "pta") and params.n_groups > 1:
         features = clustering.track_features(tracks.centred)
-    # The discrepancy principle sets the weight of a soft fit of noisy, complete tracks under
-    # fixed cameras, unless the user set it (moju and sdg; bmm stays Dai et al.'s method).
-    # Refined cameras take part of the residual, so it no longer measures the noise alone.
-    weigh = (
+    weigh = _discrepancy_weighs(user_beta2, term_name, completed, plan, params, tracks.noise)
+    return _Solve(plan, params, fitted_tracks, fitted, term, fallback, trials, features, weigh)
+
+
+def _resolved_params(
+    tracks: _Tracks, estimate: cameras.CameraEstimate, params: SolverParams
+) -> SolverParams:
+    """:func:`moju_core.defaults.resolve` for the tracks (F, 2, P) under the estimated
+    rotations (F, 2, 3), with the estimate's number of bases where it has one."""
+    n_frames, _, n_points = tracks.per_frame.shape
+    initial = np.einsum("fji,fjp->fip", estimate.rotations, tracks.per_frame)
+    top = lrr.top_singular_value(initial.reshape(n_frames, 3 * n_points))
+    del initial  # (F, 3P): do not hold it through the loop
+    n_bases = estimate.n_bases if estimate.n_bases is not None else params.n_bases
+    params = defaults.resolve(
+        params,
+        n_frames,
+        n_points,
+        top,
+        rotations=estimate.rotations,
+        noise=tracks.noise,
+        signal_rank=tracks.signal_basis.shape[1],
+    )
+    return params.model_copy(update={"n_bases": n_bases})
+
+
+def _discrepancy_weighs(
+    user_beta2: float | None,
+    term_name: str,
+    completed: CompletedTracks | None,
+    plan: SolvePlan,
+    params: SolverParams,
+    noise: float,
+) -> bool:
+    """Whether the discrepancy principle sets beta2 (:func:`_weigh_by_discrepancy`).
+
+    It sets the weight of a soft fit of noisy (``noise``: variance of the scale-normalised
+    tracks), complete tracks under fixed cameras, unless the user set it (moju and sdg; bmm
+    stays Dai et al.'s method). Refined cameras take part of the residual, so it no longer
+    measures the noise alone.
+    """
+    return (
         user_beta2 is None and term_name == "soft" and completed is None
         and not plan.refine_rotations and params.method in ("moju", "sdg")
-        and tracks.noise > defaults.EXACT_DATA_NOISE
+        and noise > defaults.EXACT_DATA_NOISE
     )  # fmt: skip
-    return _Solve(plan, params, fitted_tracks, fitted, term, fallback, trials, features, weigh)
 
 
 def _completion_kind(completed: CompletedTracks | None) -> solve_plan.Completion:
