@@ -49,7 +49,7 @@ __all__ = ["CLARABEL_SETTINGS", "ConeSolution", "solve_max_depth_cone"]
 #: 0.6-0.7 of the time, e3D the same or lower (``docs/surface_prior.md``). The tolerances stay
 #: at the defaults: at 1e-5 the consistency rounds' depths moved by up to 2.5 times (the optimum
 #: is flat along some depths) and e3D rose from 0.27 to 1.4 on a rendered scene.
-CLARABEL_SETTINGS: dict[str, bool] = {
+CLARABEL_SETTINGS: dict[str, object] = {
     "iterative_refinement_enable": False,
     "equilibrate_enable": False,
 }
@@ -330,13 +330,25 @@ def _solve_program(
     a_matrix = sp.vstack(blocks).tocsc()
     b_vector = np.zeros(a_matrix.shape[0])
     b_vector[: program.scale_rhs.size] = program.scale_rhs
+    problem = (sp.csc_matrix((program.n_x, program.n_x)), cost, a_matrix, b_vector, cones)
+    status, x = _clarabel(problem, CLARABEL_SETTINGS)
+    if x is None and CLARABEL_SETTINGS:
+        # The faster settings trade robustness for speed: an input they do not solve is
+        # solved again with Clarabel's defaults before the program counts as failed.
+        status, x = _clarabel(problem, {})
+    return status, x
+
+
+def _clarabel(problem: tuple, changed: dict[str, object]) -> tuple[str, np.ndarray | None]:
+    """One Clarabel solve of ``problem`` (P, q, A, b, cones) with the ``changed`` settings;
+    the status, and the solution unless it is not solved (or almost)."""
+    import clarabel
+
     settings = clarabel.DefaultSettings()
     settings.verbose = False
-    for name, value in CLARABEL_SETTINGS.items():
+    for name, value in changed.items():
         setattr(settings, name, value)
-    solution = clarabel.DefaultSolver(
-        sp.csc_matrix((program.n_x, program.n_x)), cost, a_matrix, b_vector, cones, settings
-    ).solve()
+    solution = clarabel.DefaultSolver(*problem, settings).solve()
     status = str(solution.status).split(".")[-1]
     ok = status in ("Solved", "AlmostSolved")
     return status, (np.asarray(solution.x) if ok else None)
