@@ -142,12 +142,11 @@ def _moved_to(
     ``frame`` by the rigid motion of the points known in both frames: (S, n, 3), NaN where
     there is no source."""
     moved = np.full(sources.shape + (3,), np.nan)
-    for rank, ranked in enumerate(sources):
-        for source in np.unique(ranked[ranked >= 0]):
-            both = known[frame] & known[source]
-            rotation, shift = _rigid_motion(shapes[source, both], shapes[frame, both])
-            chosen = ranked == source
-            moved[rank, chosen] = shapes[source, points[chosen]] @ rotation.T + shift
+    for source in np.unique(sources[sources >= 0]):
+        both = known[frame] & known[source]
+        rotation, shift = _rigid_motion(shapes[source, both], shapes[frame, both])
+        rank, column = np.nonzero(sources == source)
+        moved[rank, column] = shapes[source, points[column]] @ rotation.T + shift
     return moved
 
 
