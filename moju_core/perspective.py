@@ -83,10 +83,11 @@ def prior_shapes(
 ) -> tuple[np.ndarray, SurfaceFit]:
     """Per-image camera-frame shapes (F, P, 3) of the isometric prior, every entry filled.
 
-    ``W`` (2F, P) in pixels, ``visibility`` (F, P) bool. A seen point the prior leaves
-    without a depth (no neighbour seen with it in that image) is put on its ray at the median
-    depth of its image; a hidden point is taken from the nearest images that have it
-    (:func:`_fill_hidden`).
+    ``W`` (2F, P) in pixels, ``visibility`` (F, P) bool. A point the prior leaves without
+    a depth in an image, hidden or seen (a seen point with no neighbour seen with it, or cut
+    off from the rest of the surface in that image), is taken from the nearest images that
+    have it (:func:`_fill_hidden`); a seen one is then moved to the nearest point of its ray
+    (:func:`_unplaced_on_rays`).
     """
     n_frames, n_points = visibility.shape
     rays = intrinsics.normalise(W).reshape(n_frames, 2, n_points).transpose(0, 2, 1)
@@ -94,13 +95,25 @@ def prior_shapes(
     fit = max_depth_shapes(rays, visibility, seed=seed)
     if not np.isfinite(fit.depths).any():
         raise MeasurementError(_unsolved_prior_message(fit.status, rays, intrinsics))
-    depths = fit.depths.copy()
-    unplaced = visibility & ~np.isfinite(depths)
-    if unplaced.any():
-        median = np.nanmedian(np.where(np.isfinite(depths), depths, np.nan), axis=1)
-        depths = np.where(unplaced, median[:, None], depths)
-    shapes = depths[:, :, None] * np.concatenate([rays, np.ones((n_frames, n_points, 1))], 2)
-    return _fill_hidden(shapes, np.isfinite(shapes).all(axis=2)), fit
+    placed = np.isfinite(fit.depths)
+    homogeneous = np.concatenate([rays, np.ones((n_frames, n_points, 1))], 2)
+    shapes = _fill_hidden(fit.depths[:, :, None] * homogeneous, placed)
+    return _unplaced_on_rays(shapes, homogeneous, visibility & ~placed, fit.depths), fit
+
+
+def _unplaced_on_rays(
+    shapes: np.ndarray, homogeneous: np.ndarray, unplaced: np.ndarray, depths: np.ndarray
+) -> np.ndarray:
+    """``shapes`` (F, P, 3) with each ``unplaced`` (F, P) seen point moved to the nearest
+    point of its ray ``homogeneous`` (F, P, 3, ``[x', y', 1]``); at the median seen depth
+    of its image (``depths`` (F, P), NaN where not placed) where no image placed it or its
+    position is behind the camera. O(F P)."""
+    if not unplaced.any():
+        return shapes
+    along = np.sum(shapes * homogeneous, axis=2) / np.sum(homogeneous**2, axis=2)
+    median = np.nanmedian(depths, axis=1)[:, None]
+    along = np.where(np.isfinite(along) & (along > 0), along, median)
+    return np.where(unplaced[:, :, None], along[:, :, None] * homogeneous, shapes)
 
 
 def _unsolved_prior_message(status: str, rays: np.ndarray, intrinsics: Intrinsics) -> str:

@@ -11,8 +11,10 @@ anchors):
 
 1. anchors: ``A`` points spread over the image by farthest-point sampling, ``O(A P)``;
 2. cone program on the anchors (:mod:`~moju_core.priors.cone_program`, Clarabel),
-   ``O(F A k)`` cones; jointly on at most 30 key images, the others alone with their edge
-   lengths (:mod:`~moju_core.priors.key_images`);
+   ``O(F A k)`` cones, jointly on at most 30 key images, the others alone with their edge
+   lengths (:mod:`~moju_core.priors.key_images`); groups of anchors cut off from the rest
+   of an image are then held within their geodesic distance of it
+   (:mod:`~moju_core.priors.cut_off_groups`);
 3. all points: local-plane interpolation of the anchors' inverse depths, ``O(F P (m + log A))``
    (:mod:`~moju_core.priors.dense_depth`);
 4. dense refinement: the same bounds on the ``k``-neighbour graph of all points as a penalty,
@@ -26,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from moju_core.priors.cut_off_groups import hold_cut_off_groups
 from moju_core.priors.dense_depth import interpolate_depths, refine_depths
 from moju_core.priors.key_images import MAX_KEY_IMAGES, solve_by_key_images
 from moju_core.priors.neighbour_graph import neighbour_edges, spread_anchors, visibility_of
@@ -40,7 +43,9 @@ class SurfaceFit:
     Attributes
     ----------
     depths : ndarray of shape (F, P), float64
-        Depth of each point along its viewing ray, > 0 where seen, NaN where not seen. One
+        Depth of each point along its viewing ray, > 0 where seen, NaN where not seen (and
+        where an anchor cut off from the rest of its image cannot be held within its
+        geodesic distance of it, :mod:`~moju_core.priors.cut_off_groups`). One
         global scale for the sequence, fixed so that the mean of the seen depths is 1.
     shapes : ndarray of shape (F, P, 3), float64
         ``depth * [x', y', 1]`` in each image's camera frame (same unit as ``depths``).
@@ -240,15 +245,18 @@ def max_depth_shapes(
         outlier_price=outlier_price,
         n_key=n_key_images,
     )
+    cone_depths = hold_cut_off_groups(
+        rays[:, anchors], seen[:, anchors], anchor_edges, cone.depths, cone.lengths
+    )
     seconds["cone"] = cone.seconds
 
     violation, n_edges = 0.0, len(anchor_edges)
     if anchors.size == n_points:
-        depths = cone.depths
+        depths = cone_depths
         seconds["interpolate"] = seconds["refine"] = 0.0
     else:
         depths, violation, n_edges = _dense_depths(
-            rays, seen, anchors, cone.depths, k=k, refine_iter=refine_iter, seconds=seconds
+            rays, seen, anchors, cone_depths, k=k, refine_iter=refine_iter, seconds=seconds
         )
 
     depths, shapes = _scaled_shapes(rays, seen, depths)

@@ -13,9 +13,11 @@ Every function here is pure (no globals, no randomness except through ``seed``).
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["neighbour_edges", "spread_anchors", "visibility_of"]
+__all__ = ["largest_groups", "neighbour_edges", "spread_anchors", "visibility_of"]
 
 
 def visibility_of(rays: np.ndarray, visibility: np.ndarray | None = None) -> np.ndarray:
@@ -143,3 +145,45 @@ def spread_anchors(
         chosen[a] = int(np.argmax(dist))
         dist = np.minimum(dist, np.linalg.norm(pts - pts[chosen[a]], axis=1))
     return np.sort(eligible[chosen])
+
+
+def largest_groups(seen: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """The seen entries joined by seen edges to the largest group of their image.
+
+    In each image the edges whose two ends are seen split the seen points into connected
+    groups. Inextensibility relates the depths of two points only through a path of such
+    edges, so a group cut off from the rest in one image (a flap turning edge-on, whose links
+    to the sheet are hidden) has no depth relative to the rest there: the maximum-depth
+    heuristic would push it as far as its own few edges allow, several times the surface's
+    depth when it is seen edge-on. Only the largest group of each image is kept (the earliest
+    of equal largest ones, so the choice is deterministic).
+
+    Cost: ``O(F (P + E))`` time, ``O(P + E)`` memory (one image at a time).
+
+    Parameters
+    ----------
+    seen : ndarray of shape (F, P), bool
+        True where the point is seen.
+    edges : ndarray of shape (E, 2), int
+        Undirected edges between points.
+
+    Returns
+    -------
+    placed : ndarray of shape (F, P), bool
+        ``seen`` restricted to the largest group of each image.
+    """
+    seen = np.asarray(seen, dtype=bool)
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    n_points = seen.shape[1]
+    placed = np.zeros_like(seen)
+    for f, row in enumerate(seen):
+        if not row.any():
+            continue
+        whole = edges[row[edges[:, 0]] & row[edges[:, 1]]]
+        graph = sp.coo_matrix(
+            (np.ones(len(whole)), (whole[:, 0], whole[:, 1])), shape=(n_points, n_points)
+        )
+        _, label = connected_components(graph, directed=False)
+        sizes = np.bincount(label[row], minlength=label.max() + 1)
+        placed[f] = row & (label == np.argmax(sizes))
+    return placed

@@ -12,7 +12,7 @@ from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.datasets.perspective_sheets import cylinder_sheet
 from moju_core.datasets.totem import out_of_plane_ratio, scaled_e3d
 from moju_core.errors import MeasurementError
-from moju_core.perspective import _fill_hidden, uses_surface_prior
+from moju_core.perspective import _fill_hidden, _unplaced_on_rays, uses_surface_prior
 
 FOCAL = 800.0
 CAMERA = Intrinsics(np.array([[FOCAL, 0.0, 0.0], [0.0, FOCAL, 0.0], [0.0, 0.0, 1.0]]))
@@ -151,3 +151,21 @@ def test_a_focal_length_far_too_long_is_refused_with_what_to_do():
     camera = Intrinsics.from_focal(1e12, (640, 480))
     with pytest.raises(MeasurementError, match="field of view .* focal length"):
         reconstruct(W, SolverParams(seed=0), intrinsics=camera)
+
+
+def test_a_seen_point_without_a_depth_goes_to_its_ray_from_where_other_frames_put_it():
+    # Point 0 is seen in frame 1 but the prior set no depth for it there; the fill put it
+    # at (0.1, 0, 2) (from the other frames); its ray in frame 1 is the optical axis.
+    homogeneous = np.zeros((2, 3, 3))
+    homogeneous[..., 2] = 1.0
+    depths = np.array([[2.0, 3.0, 4.0], [np.nan, 3.0, 5.0]])
+    shapes = depths[..., None] * homogeneous
+    shapes[1, 0] = [0.1, 0.0, 2.0]
+    unplaced = np.isnan(depths)
+    placed = _unplaced_on_rays(shapes, homogeneous, unplaced, depths)
+    np.testing.assert_allclose(placed[1, 0], [0.0, 0.0, 2.0])
+    assert np.array_equal(placed[~unplaced], shapes[~unplaced])
+    # Where no frame placed it, the median depth of its image (3 and 5: 4).
+    shapes[1, 0] = np.nan
+    placed = _unplaced_on_rays(shapes, homogeneous, unplaced, depths)
+    np.testing.assert_allclose(placed[1, 0], [0.0, 0.0, 4.0])

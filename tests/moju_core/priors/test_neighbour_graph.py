@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from moju_core.priors.neighbour_graph import neighbour_edges, spread_anchors
+from moju_core.priors.neighbour_graph import largest_groups, neighbour_edges, spread_anchors
 
 
 def _grid(n_frames: int = 3) -> np.ndarray:
@@ -48,3 +48,24 @@ def test_anchors_spread_and_seeded():
     assert gaps.min() > 0.3  # spread over the 0.9 x 0.5 image, not clustered
     np.testing.assert_array_equal(anchors, spread_anchors(rays, n_anchor=4, seed=0))
     assert spread_anchors(rays, n_anchor=1000).size == 60
+
+
+def test_largest_groups_keep_the_largest_group_of_each_image():
+    chain = np.array([[0, 1], [1, 2], [2, 3], [3, 4], [4, 5]])
+    seen = np.ones((4, 6), bool)
+    seen[1, 2] = False  # image 1: {0, 1} and {3, 4, 5}
+    seen[2, 3] = False  # image 2: {0, 1, 2} and {4, 5}
+    seen[3] = False  # image 3 sees nothing
+    placed = largest_groups(seen, chain)
+    assert placed[0].all()
+    assert placed[1].tolist() == [False, False, False, True, True, True]
+    assert placed[2].tolist() == [True, True, True, False, False, False]
+    assert not placed[3].any()
+
+
+def test_largest_groups_tie_goes_to_the_earliest_group():
+    chain = np.array([[0, 1], [1, 2], [2, 3]])
+    seen = np.array([[True, True, False, True], [True, False, True, True]])
+    placed = largest_groups(seen, chain)
+    assert placed[0].tolist() == [True, True, False, False]
+    assert placed[1].tolist() == [False, False, True, True]
