@@ -25,9 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.sparse.csgraph import dijkstra
 
-from moju_core.priors.neighbour_graph import largest_groups
+from moju_core.priors.neighbour_graph import group_labels, largest_groups
 
 __all__ = ["hold_cut_off_groups"]
 
@@ -96,12 +96,7 @@ def _geodesics(
 def _groups(members: np.ndarray, edges: np.ndarray) -> list[np.ndarray]:
     """Connected groups (point indices) of the ``members`` (P,) bool over the edges with both
     ends members."""
-    whole = edges[members[edges[:, 0]] & members[edges[:, 1]]]
-    n_points = members.size
-    graph = sp.coo_matrix(
-        (np.ones(len(whole)), (whole[:, 0], whole[:, 1])), shape=(n_points, n_points)
-    )
-    _, label = connected_components(graph, directed=False)
+    label = group_labels(members, edges)
     return [np.flatnonzero(members & (label == g)) for g in np.unique(label[members])]
 
 

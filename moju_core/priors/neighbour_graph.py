@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["largest_groups", "neighbour_edges", "spread_anchors", "visibility_of"]
+__all__ = ["group_labels", "largest_groups", "neighbour_edges", "spread_anchors", "visibility_of"]
 
 
 def visibility_of(rays: np.ndarray, visibility: np.ndarray | None = None) -> np.ndarray:
@@ -174,16 +174,21 @@ def largest_groups(seen: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """
     seen = np.asarray(seen, dtype=bool)
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    n_points = seen.shape[1]
     placed = np.zeros_like(seen)
     for f, row in enumerate(seen):
-        if not row.any():
-            continue
-        whole = edges[row[edges[:, 0]] & row[edges[:, 1]]]
-        graph = sp.coo_matrix(
-            (np.ones(len(whole)), (whole[:, 0], whole[:, 1])), shape=(n_points, n_points)
-        )
-        _, label = connected_components(graph, directed=False)
-        sizes = np.bincount(label[row], minlength=label.max() + 1)
-        placed[f] = row & (label == np.argmax(sizes))
+        if row.any():
+            label = group_labels(row, edges)
+            sizes = np.bincount(label[row], minlength=label.max() + 1)
+            placed[f] = row & (label == np.argmax(sizes))
     return placed
+
+
+def group_labels(members: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Connected-group label (P,) of every point over the ``edges`` (E, 2) whose two ends are
+    ``members`` (P,) bool; a point outside ``members`` is a group of its own. ``O(P + E)``."""
+    whole = edges[members[edges[:, 0]] & members[edges[:, 1]]]
+    n_points = members.size
+    graph = sp.coo_matrix(
+        (np.ones(len(whole)), (whole[:, 0], whole[:, 1])), shape=(n_points, n_points)
+    )
+    return connected_components(graph, directed=False)[1]
