@@ -43,9 +43,7 @@ class SurfaceFit:
     Attributes
     ----------
     depths : ndarray of shape (F, P), float64
-        Depth of each point along its viewing ray, > 0 where seen, NaN where not seen (and
-        where an anchor cut off from the rest of its image cannot be held within its
-        geodesic distance of it, :mod:`~moju_core.priors.cut_off_groups`). One
+        Depth of each point along its viewing ray, > 0 where seen, NaN where not seen. One
         global scale for the sequence, fixed so that the mean of the seen depths is 1.
     shapes : ndarray of shape (F, P, 3), float64
         ``depth * [x', y', 1]`` in each image's camera frame (same unit as ``depths``).
@@ -246,7 +244,7 @@ def max_depth_shapes(
         n_key=n_key_images,
     )
     cone_depths = hold_cut_off_groups(
-        rays[:, anchors], seen[:, anchors], anchor_edges, cone.depths, cone.lengths
+        rays[:, anchors], seen[:, anchors], anchor_edges, cone.depths, cone.lengths, cone.shrink
     )
     seconds["cone"] = cone.seconds
 

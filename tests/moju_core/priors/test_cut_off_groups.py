@@ -59,3 +59,29 @@ def test_no_factor_meets_inconsistent_bounds():
     assert np.isnan(_largest_factor(group, rest, np.array([[0.5], [0.5]])))
     assert _largest_factor(group, rest, np.array([[np.inf], [np.inf]])) == 1.0
     assert _largest_factor(group, rest, np.array([[1.0], [1.0]])) == pytest.approx(1.0)
+
+
+def test_a_group_beyond_reach_by_less_than_the_slack_is_kept():
+    rays, edges, depths = _strip()
+    seen = np.ones(depths.shape, bool)
+    seen[1, 4:6] = False
+    depths[1, 6:] = 2.1  # 5 % deeper: its points are a little beyond their geodesic distance
+    start = np.where(seen, depths, np.nan)
+    lengths = np.full(len(edges), 0.1)
+    moved = hold_cut_off_groups(rays, seen, edges, start, lengths, slack=0.0)
+    assert moved[1, 6] < 2.1
+    kept = hold_cut_off_groups(rays, seen, edges, start, lengths, slack=0.1)
+    assert np.array_equal(kept[seen], start[seen])
+
+
+def test_a_group_whose_bounds_contradict_keeps_its_depths():
+    rays, edges, depths = _strip()
+    seen = np.ones(depths.shape, bool)
+    seen[1, 4:6] = False
+    lengths = np.full(len(edges), 0.1)
+    lengths[3] = 0.01  # point 4 cannot be 0.01 from point 3 and on its own ray: no factor fits
+    lengths[4] = 0.01
+    lengths[5] = 0.01
+    start = np.where(seen, depths, np.nan)
+    held = hold_cut_off_groups(rays, seen, edges, start, lengths)
+    assert np.array_equal(held[seen], start[seen])
