@@ -151,12 +151,10 @@ def largest_groups(seen: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """The seen entries joined by seen edges to the largest group of their image.
 
     In each image the edges whose two ends are seen split the seen points into connected
-    groups. Inextensibility relates the depths of two points only through a path of such
-    edges, so a group cut off from the rest in one image (a flap turning edge-on, whose links
-    to the sheet are hidden) has no depth relative to the rest there: the maximum-depth
-    heuristic would push it as far as its own few edges allow, several times the surface's
-    depth when it is seen edge-on. Only the largest group of each image is kept (the earliest
-    of equal largest ones, so the choice is deterministic).
+    groups; inextensibility relates the depths of two points only through a path of such
+    edges. The largest group of each image (the earliest of equal largest ones, so the choice
+    is deterministic) is the one the others are held to
+    (:mod:`~moju_core.priors.cut_off_groups`).
 
     Cost: ``O(F (P + E))`` time, ``O(P + E)`` memory (one image at a time).
 
