@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
+from moju_core.priors.dense_depth import homogeneous
 from moju_core.priors.neighbour_graph import group_labels, largest_groups
 
 __all__ = ["hold_cut_off_groups"]
@@ -76,7 +77,7 @@ def hold_cut_off_groups(
     geodesic = _geodesics(edges, lengths, seen.shape[1], sources)  # (C, P)
     row_of = np.full(seen.shape[1], -1)
     row_of[sources] = np.arange(sources.size)
-    points = _points(rays, depths)
+    points = depths[..., None] * homogeneous(rays)  # (F, P, 3)
     for f in np.flatnonzero(cut_off.any(axis=1)):
         for group in _groups(cut_off[f], edges):
             bounds = (1.0 + slack) * geodesic[row_of[group]][:, placed[f]]  # (G, M)
@@ -84,11 +85,6 @@ def hold_cut_off_groups(
             if factor < 1.0:
                 out[f, group] = depths[f, group] * factor
     return out
-
-
-def _points(rays: np.ndarray, depths: np.ndarray) -> np.ndarray:
-    """``depth * [x', y', 1]`` (F, P, 3)."""
-    return depths[..., None] * np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
 
 
 def _geodesics(

@@ -19,10 +19,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["edge_bounds", "interpolate_depths", "refine_depths"]
+__all__ = ["edge_bounds", "homogeneous", "interpolate_depths", "refine_depths"]
 
 
-def _homogeneous(rays: np.ndarray) -> np.ndarray:
+def homogeneous(rays: np.ndarray) -> np.ndarray:
+    """``[x', y', 1]`` (..., 3) of rays (..., 2): ``depth * homogeneous(rays)`` is a point."""
     return np.concatenate([rays, np.ones(rays.shape[:-1] + (1,))], axis=-1)
 
 
@@ -114,7 +115,7 @@ def edge_bounds(
     bounds = np.full(len(edges), -np.inf)
     i, j = edges[:, 0], edges[:, 1]
     for f in range(rays.shape[0]):
-        x = depths[f, :, None] * _homogeneous(rays[f])
+        x = depths[f, :, None] * homogeneous(rays[f])
         both = known[f, i] & known[f, j]
         lengths = np.linalg.norm(x[i] - x[j], axis=1)
         bounds = np.where(both, np.maximum(bounds, lengths), bounds)
@@ -200,7 +201,7 @@ def refine_depths(
     for f in range(seen.shape[0]):
         both = known[f, edges[:, 0]] & known[f, edges[:, 1]]
         i, j = edges[both, 0], edges[both, 1]
-        q = _homogeneous(np.where(known[f, :, None], rays[f], 0.0))
+        q = homogeneous(np.where(known[f, :, None], rays[f], 0.0))
         d, excess = _refine_image(
             q, d_all[f], known[f] & ~is_anchor, i, j, bounds[both], n_iter, push, n_project
         )
