@@ -110,7 +110,7 @@ def _unplaced_on_rays(
     position is behind the camera. O(F P)."""
     if not unplaced.any():
         return shapes
-    along = np.sum(shapes * homogeneous, axis=2) / np.sum(homogeneous**2, axis=2)
+    along = _along_rays(shapes, homogeneous)
     median = np.nanmedian(depths, axis=1)[:, None]
     along = np.where(np.isfinite(along) & (along > 0), along, median)
     return np.where(unplaced[:, :, None], along[:, :, None] * homogeneous, shapes)
@@ -246,5 +246,10 @@ def _onto_rays(shapes: np.ndarray, prior: np.ndarray) -> np.ndarray:
     ray through the prior's point (F, P, 3; on its ray where seen), so that the loop sets
     depths and the tracks alone set where the points are seen. O(F P)."""
     rays = prior / prior[:, :, 2:3]
-    along = np.sum(shapes * rays, axis=2, keepdims=True) / np.sum(rays**2, axis=2, keepdims=True)
-    return along * rays
+    return _along_rays(shapes, rays)[:, :, None] * rays
+
+
+def _along_rays(shapes: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """Parameter ``t`` (F, P) of the point ``t * ray`` nearest to each point of ``shapes``
+    (F, P, 3), ``rays`` (F, P, 3) with z = 1 (so ``t`` is a depth). O(F P)."""
+    return np.sum(shapes * rays, axis=2) / np.sum(rays**2, axis=2)
