@@ -172,7 +172,7 @@ REAL_VARIANTS = {
     "plain MDH (k=35, as the reference)": {"rigidity": 0.0, "k": 35},
     "MDH + consistency, soft upper bound (outlier price 10)": {"outlier_price": 10.0},
     "40 anchors + interpolation": {"n_anchor": 40, "refine_iter": 0},
-    "40 anchors + interpolation + refinement": {"n_anchor": 40},
+    "40 anchors + interpolation + refinement": {"n_anchor": 40, "refine_iter": 60},
 }
 
 
@@ -199,7 +199,7 @@ def main() -> None:
     syn.add_argument("--turn", type=float, default=15.0)
     syn.add_argument("--outliers", type=float, default=0.0)
     syn.add_argument("--n-anchor", type=int, default=200)
-    syn.add_argument("--refine-iter", type=int, default=60)
+    syn.add_argument("--refine-iter", type=int, default=0)
     syn.add_argument("--tag", default="")
     tim = sub.add_parser("timing")
     tim.add_argument("--points", type=int, nargs="+", default=[5000, 20000])

@@ -17,8 +17,11 @@ anchors):
    (:mod:`~moju_core.priors.cut_off_groups`);
 3. all points: local-plane interpolation of the anchors' inverse depths, ``O(F P (m + log A))``
    (:mod:`~moju_core.priors.dense_depth`);
-4. dense refinement: the same bounds on the ``k``-neighbour graph of all points as a penalty,
-   first-order, ``O(F P k)`` per iteration; graph ``O(F P k log P)``.
+4. optional dense refinement (``refine_iter > 0``; off by default): the plain maximum-depth
+   push under the same bounds on the ``k``-neighbour graph of all points, first-order,
+   ``O(F P k)`` per iteration; graph ``O(F P k log P)``. It has no consistency term, so it
+   brings back the plain heuristic's extra relief between the anchors: on rendered footage
+   the interpolation alone is closer to the truth (``docs/surface_prior.md``).
 """
 
 from __future__ import annotations
@@ -57,7 +60,8 @@ class SurfaceFit:
         Mean relative excess of the dense edges over their bounds after refinement (0 = all
         bounds hold).
     n_edges : int
-        Edges of the dense neighbour graph.
+        Edges of the graph whose bounds the depths were fitted under: the dense neighbour
+        graph when refined, else the anchors' graph.
     n_solves : int
         Cone programs solved (1 + edge-length consistency rounds).
     shrink : float
@@ -121,7 +125,7 @@ def _dense_depths(
     k : int
         Image neighbours per point of the dense graph.
     refine_iter : int
-        Iterations of the dense refinement (0: interpolation only).
+        Iterations of the dense refinement (0: interpolation only, and no dense graph).
     seconds : dict of str to float
         Wall times (seconds): ``interpolate`` and ``refine`` are set, the dense graph's time
         is added to ``graph``.
@@ -133,18 +137,19 @@ def _dense_depths(
     violation : float
         Mean relative excess of the dense edges over their bounds (0 without refinement).
     n_edges : int
-        Edges of the dense neighbour graph.
+        Edges of the dense neighbour graph (0 when it is not built).
     """
-    violation = 0.0
     t0 = time.perf_counter()
     depths = interpolate_depths(rays, seen, anchors, anchor_depths)
     seconds["interpolate"] = time.perf_counter() - t0
+    seconds["refine"] = 0.0
+    if refine_iter <= 0:
+        return depths, 0.0, 0
     t0 = time.perf_counter()
     edges = neighbour_edges(rays, seen, k=k)
     seconds["graph"] += time.perf_counter() - t0
     t0 = time.perf_counter()
-    if refine_iter > 0:
-        depths, violation = refine_depths(rays, seen, edges, depths, anchors, n_iter=refine_iter)
+    depths, violation = refine_depths(rays, seen, edges, depths, anchors, n_iter=refine_iter)
     seconds["refine"] = time.perf_counter() - t0
     return depths, violation, len(edges)
 
@@ -184,7 +189,7 @@ def max_depth_shapes(
     seed: int = 0,
     rigidity: float = 30.0,
     outlier_price: float = np.inf,
-    refine_iter: int = 60,
+    refine_iter: int = 0,
     n_key_images: int = MAX_KEY_IMAGES,
 ) -> SurfaceFit:
     """Per-image 3D shapes from perspective tracks by the maximum-depth heuristic.
@@ -210,8 +215,9 @@ def max_depth_shapes(
     outlier_price : float, default inf
         Price of an edge exceeding its bound (a soft upper bound against wrong tracks);
         ``inf`` keeps the bounds hard, which measured better (docs/surface_prior.md).
-    refine_iter : int, default 60
-        Iterations of the dense refinement (0: interpolation only).
+    refine_iter : int, default 0
+        Iterations of the dense refinement; 0 (the default) stops at the interpolation of
+        the anchors' depths, which measured closer to the truth on rendered footage.
     n_key_images : int, default :data:`~moju_core.priors.key_images.MAX_KEY_IMAGES`
         Most images whose cone program is solved jointly; the others are solved alone with
         their edge lengths (:func:`~moju_core.priors.key_images.solve_by_key_images`).
@@ -253,9 +259,10 @@ def max_depth_shapes(
         depths = cone_depths
         seconds["interpolate"] = seconds["refine"] = 0.0
     else:
-        depths, violation, n_edges = _dense_depths(
+        depths, violation, dense_edges = _dense_depths(
             rays, seen, anchors, cone_depths, k=k, refine_iter=refine_iter, seconds=seconds
         )
+        n_edges = dense_edges or n_edges
 
     depths, shapes = _scaled_shapes(rays, seen, depths)
     seconds["total"] = time.perf_counter() - t_start

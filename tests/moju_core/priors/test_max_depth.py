@@ -83,11 +83,20 @@ def test_dense_stage_from_anchors():
     rays, truth = cylinder_sheet(n_points=600, n_frames=5, seed=1)
     result = max_depth_shapes(rays, n_anchor=80, seed=1)
     assert result.anchors.size == 80
+    assert result.n_edges < 600  # the anchors' graph: no dense graph is built by default
+    assert result.seconds["refine"] == 0.0 and result.violation == 0.0
+    assert np.all(result.depths > 0)
+    assert scaled_e3d(result.shapes, truth) < 0.12
+    assert set(result.seconds) >= {"graph", "cone", "interpolate", "refine", "total"}
+
+
+def test_dense_refinement_keeps_the_bounds():
+    rays, truth = cylinder_sheet(n_points=600, n_frames=5, seed=1)
+    result = max_depth_shapes(rays, n_anchor=80, seed=1, refine_iter=60)
     assert result.n_edges > 600 * 3
     assert np.all(result.depths > 0)
     assert scaled_e3d(result.shapes, truth) < 0.12
     assert result.violation < 0.01  # the dense bounds hold to 1 % on average
-    assert set(result.seconds) >= {"graph", "cone", "interpolate", "refine", "total"}
 
 
 def test_interpolation_exact_on_a_plane():
