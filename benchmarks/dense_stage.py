@@ -1,0 +1,184 @@
+"""The surface prior's dense stage on rendered footage, and where its consistency rounds stop.
+
+For each scene (rendered and tracked as in ``benchmarks/footage.py``) the cone program is
+solved once on the anchors; the dense stage is then run three ways from the same anchor
+depths, and the prior alone is scored over the seen entries (``visible_e3d``, per-frame scale
+and Procrustes):
+
+* ``interpolation``: local planes through the anchors' inverse depths (the default);
+* ``refinement``: the same, then 60 iterations of the first-order maximum-depth push under
+  the dense edges' bounds (``refine_iter=60``);
+* ``two-sided``: the same iterations without the push, every dense edge pulled to its bound
+  from both sides (a dense analogue of the consistency rounds).
+
+``--oracle-start`` also runs the anchors' consistency rounds from the true depths: the cost
+the program reaches from there against the cost it reaches from its own start, with the
+anchors' e3D of each. It is a diagnostic (it reads the truth), not a method.
+
+    PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds 0 1 2 10 11 12 \\
+        --held-out 20 21 22 30 31 32
+    PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds 11 --held-out --oracle-start \\
+        --tag _oracle_start
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from footage import scene_video, visible_e3d
+from harness import RESULTS, provenance, table, write_json, write_markdown
+from tracking import perfect_tracks
+
+import moju_core.priors.cone_program as cone_program
+from moju_core.datasets.footage_scenes import FOOTAGE_KINDS
+from moju_core.footage.tracking import track_frames
+from moju_core.priors import dense_depth
+from moju_core.priors.cut_off_groups import hold_cut_off_groups
+from moju_core.priors.key_images import solve_by_key_images
+from moju_core.priors.max_depth import _scaled_shapes
+from moju_core.priors.neighbour_graph import neighbour_edges, spread_anchors
+
+OUT = RESULTS / "surface_prior"
+N_ANCHOR, K, RIGIDITY, REFINE_ITER = 200, 8, 30.0, 60
+
+
+def _two_sided_image(q, d, free, i, j, bounds, n_iter, push, n_project):
+    """``dense_depth._refine_image`` with every edge pulled to its bound from both sides."""
+    n_points = d.size
+    qi, qj = q[i], q[j]
+    for _ in range(n_iter * n_project):
+        diff = d[i, None] * qi - d[j, None] * qj
+        length = np.linalg.norm(diff, axis=1)
+        u = diff / np.maximum(length, 1e-300)[:, None]
+        gi, gj = np.einsum("ek,ek->e", u, qi), -np.einsum("ek,ek->e", u, qj)
+        step = (length - bounds) / np.maximum(gi**2 + gj**2, 1e-2)
+        delta = -np.bincount(i, step * gi, n_points) - np.bincount(j, step * gj, n_points)
+        count = np.bincount(i, minlength=n_points) + np.bincount(j, minlength=n_points)
+        d = np.where(free, d + np.clip(delta / np.maximum(count, 1.0), -0.05 * d, 0.05 * d), d)
+    diff = d[i, None] * qi - d[j, None] * qj
+    return d, np.linalg.norm(diff, axis=1) - bounds
+
+
+def dense_variants(rays, seen, anchors, anchor_depths) -> dict[str, np.ndarray]:
+    """Depths (F, P) of every point by the three dense stages, from the same anchor depths."""
+    interpolated = dense_depth.interpolate_depths(rays, seen, anchors, anchor_depths)
+    edges = neighbour_edges(rays, seen, k=K)
+    out = {"interpolation": interpolated}
+    out["refinement"] = dense_depth.refine_depths(
+        rays, seen, edges, interpolated, anchors, n_iter=REFINE_ITER
+    )[0]
+    original = dense_depth._refine_image
+    dense_depth._refine_image = _two_sided_image
+    try:
+        out["two-sided"] = dense_depth.refine_depths(
+            rays, seen, edges, interpolated, anchors, n_iter=REFINE_ITER, push=0.0
+        )[0]
+    finally:
+        dense_depth._refine_image = original
+    return out
+
+
+def oracle_start(rays, seen, edges, truth) -> dict[str, float]:
+    """Costs and anchors' e3D of the consistency rounds from their own start and from the
+    true depths, on all images jointly; ``truth`` (F, A, 3) the anchors' true 3D paths."""
+    original = cone_program._consistency_rounds
+    costs: dict[str, float] = {}
+    start: dict[str, np.ndarray] = {}
+
+    def rounds(program, cost, best, status, *, n_rounds, tol):
+        if "truth" in start:
+            best = best.copy()
+            true = start["truth"][program.pairs.constrained]
+            best[program.depths] = true * np.mean(best[program.depths]) / np.mean(true)
+        result = original(program, cost, best, status, n_rounds=n_rounds, tol=tol)
+        costs["cost"] = float(cost @ result[1])
+        return result
+
+    cone_program._consistency_rounds = rounds
+    out: dict[str, float] = {}
+    try:
+        for label in ("own start", "true start"):
+            if label == "true start":
+                start["truth"] = truth[..., 2]
+            sol = cone_program.solve_max_depth_cone(rays, seen, edges, rigidity=RIGIDITY)
+            placed = seen & np.isfinite(sol.depths)
+            shapes = _scaled_shapes(rays, placed, sol.depths)[1]
+            out[f"{label} cost"] = costs["cost"]
+            out[f"{label} shrink"] = sol.shrink
+            out[f"{label} e3d"] = float(visible_e3d(np.nan_to_num(shapes), truth, placed))
+    finally:
+        cone_program._consistency_rounds = original
+    return out
+
+
+def run_scene(kind: str, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Rows (tracks, perfect) of one scene."""
+    _, video = scene_video(kind, seed, args)
+    tracks = replace(track_frames(list(video.frames), mask=video.mask), intrinsics=video.intrinsics)
+    kept, perfect, index = perfect_tracks(video, tracks)
+    truth = video.paths_3d[:, index]
+    rows = []
+    for label, source in (("tracks", kept), ("perfect", perfect)):
+        n_frames, n_points = source.visibility.shape
+        rays = video.intrinsics.normalise(source.W).reshape(n_frames, 2, n_points)
+        rays = np.where(source.visibility[:, :, None], rays.transpose(0, 2, 1), np.nan)
+        seen = source.visibility
+        anchors = spread_anchors(rays, seen, n_anchor=N_ANCHOR, seed=0)
+        r, s = rays[:, anchors], seen[:, anchors]
+        edges = neighbour_edges(r, s, k=K)
+        row: dict[str, Any] = {"kind": kind, "seed": seed, "source": label, "points": n_points}
+        if args.oracle_start:
+            row.update(oracle_start(r, s, edges, truth[:, anchors]))
+        else:
+            cone = solve_by_key_images(r, s, edges, rigidity=RIGIDITY, outlier_price=np.inf)
+            depths = hold_cut_off_groups(r, s, edges, cone.depths, cone.lengths, cone.shrink)
+            placed = s & np.isfinite(depths)  # the program leaves unbounded entries NaN
+            anchor_shapes = _scaled_shapes(r, placed, depths)[1]
+            row["anchors"] = visible_e3d(np.nan_to_num(anchor_shapes), truth[:, anchors], placed)
+            for name, dense in dense_variants(rays, seen, anchors, depths).items():
+                shapes = _scaled_shapes(rays, seen, dense)[1]
+                row[name] = visible_e3d(np.nan_to_num(shapes), truth, seen)
+        print(row, flush=True)
+        rows.append(row)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2, 10, 11, 12])
+    parser.add_argument("--held-out", type=int, nargs="*", default=[20, 21, 22, 30, 31, 32])
+    parser.add_argument("--oracle-start", action="store_true")
+    parser.add_argument("--tag", default="")
+    args = parser.parse_args()
+    args.frames, args.width, args.height, args.mesh = 30, 640, 480, 6000
+    meta = provenance()
+    splits: dict[str, list[dict[str, Any]]] = {}
+    for split, seeds in (("design", args.seeds), ("held-out", args.held_out)):
+        for seed in seeds:
+            splits.setdefault(split, []).extend(
+                run_scene(FOOTAGE_KINDS[seed % len(FOOTAGE_KINDS)], seed, args)
+            )
+            write(f"dense_stage{args.tag}", meta, splits)
+
+
+def write(name: str, meta: dict[str, Any], splits: dict[str, list[dict[str, Any]]]) -> None:
+    """JSON and one markdown table per split (columns: every score of the rows)."""
+    write_json(OUT / f"{name}.json", meta, splits=splits)
+    body: list[str] = []
+    for split, rows in splits.items():
+        scores = [k for k in rows[0] if k not in ("kind", "seed", "source", "points")]
+        lines = [
+            [r["kind"], r["seed"], r["source"], r["points"]]
+            + [f"{r[k]:.4f}" if isinstance(r[k], float) else r[k] for k in scores]
+            for r in rows
+        ]
+        header = ["kind", "seed", "tracks", "points", *scores]
+        body += [f"## {split}", "", *table(header, lines), ""]
+    write_markdown(OUT / f"{name}.md", "The surface prior's dense stage", meta, body)
+
+
+if __name__ == "__main__":
+    main()
