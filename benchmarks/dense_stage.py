@@ -11,9 +11,10 @@ and Procrustes):
 * ``two-sided``: the same iterations without the push, every dense edge pulled to its bound
   from both sides (a dense analogue of the consistency rounds).
 
-``--oracle-start`` also runs the anchors' consistency rounds from the true depths: the cost
-the program reaches from there against the cost it reaches from its own start, with the
-anchors' e3D of each. It is a diagnostic (it reads the truth), not a method.
+``--oracle-start`` runs the anchors' consistency rounds from the true depths and from the
+best single rigid shape of the truth posed in every frame: the cost the program reaches
+from each against the cost it reaches from its own start, with the anchors' e3D of each. It
+is a diagnostic (it reads the truth), not a method.
 
     PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds 0 1 2 10 11 12 \\
         --held-out 20 21 22 30 31 32
@@ -35,6 +36,7 @@ from tracking import perfect_tracks
 import moju_core.priors.cone_program as cone_program
 from moju_core.datasets.footage_scenes import FOOTAGE_KINDS
 from moju_core.footage.tracking import track_frames
+from moju_core.metrics import align
 from moju_core.priors import dense_depth
 from moju_core.priors.cut_off_groups import hold_cut_off_groups
 from moju_core.priors.key_images import solve_by_key_images
@@ -81,9 +83,28 @@ def dense_variants(rays, seen, anchors, anchor_depths) -> dict[str, np.ndarray]:
     return out
 
 
+def rigid_depths(rays: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Depths (F, A) along the rays of the best single rigid shape of ``truth`` (F, A, 3):
+    the generalised Procrustes mean of the true frames, scaled and posed onto each frame."""
+    centred = truth - truth.mean(axis=1, keepdims=True)
+    mean = centred[0]
+    for _ in range(10):
+        target = np.broadcast_to(mean, centred.shape)
+        norms = np.linalg.norm(centred, axis=(1, 2))
+        scaled = centred * (np.linalg.norm(mean) / norms)[:, None, None]
+        mean = align(scaled, target, "procrustes").mean(axis=0)
+    posed = np.empty_like(truth)
+    for f in range(truth.shape[0]):
+        u, s, vt = np.linalg.svd(centred[f].T @ mean)
+        posed[f] = (s.sum() / np.sum(mean**2)) * mean @ (u @ vt).T + truth[f].mean(axis=0)
+    q = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
+    return np.sum(posed * q, axis=2) / np.sum(q * q, axis=2)  # nearest points of the rays
+
+
 def oracle_start(rays, seen, edges, truth) -> dict[str, float]:
-    """Costs and anchors' e3D of the consistency rounds from their own start and from the
-    true depths, on all images jointly; ``truth`` (F, A, 3) the anchors' true 3D paths."""
+    """Costs and anchors' e3D of the consistency rounds from their own start, from the true
+    depths and from the best single rigid shape's (:func:`rigid_depths`), on all images
+    jointly; ``truth`` (F, A, 3) the anchors' true 3D paths."""
     original = cone_program._consistency_rounds
     costs: dict[str, float] = {}
     start: dict[str, np.ndarray] = {}
@@ -100,9 +121,10 @@ def oracle_start(rays, seen, edges, truth) -> dict[str, float]:
     cone_program._consistency_rounds = rounds
     out: dict[str, float] = {}
     try:
-        for label in ("own start", "true start"):
-            if label == "true start":
-                start["truth"] = truth[..., 2]
+        starts = {"true start": truth[..., 2], "rigid start": rigid_depths(rays, truth)}
+        for label in ("own start", *starts):
+            if label in starts:
+                start["truth"] = starts[label]
             sol = cone_program.solve_max_depth_cone(rays, seen, edges, rigidity=RIGIDITY)
             placed = seen & np.isfinite(sol.depths)
             shapes = _scaled_shapes(rays, placed, sol.depths)[1]
