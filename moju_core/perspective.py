@@ -35,6 +35,7 @@ from moju_core.errors import MeasurementError
 from moju_core.loop import admm, lrr
 from moju_core.loop.data_terms import AnchoredTerm
 from moju_core.params import SolverParams
+from moju_core.priors.dense_depth import homogeneous
 from moju_core.priors.max_depth import SurfaceFit, max_depth_shapes
 from moju_core.spectrum import noise_variance, significant_rank, spectrum
 
@@ -96,9 +97,9 @@ def prior_shapes(
     if not np.isfinite(fit.depths).any():
         raise MeasurementError(_unsolved_prior_message(fit.status, rays, intrinsics))
     placed = np.isfinite(fit.depths)
-    homogeneous = np.concatenate([rays, np.ones((n_frames, n_points, 1))], 2)
-    shapes = _fill_hidden(fit.depths[:, :, None] * homogeneous, placed)
-    return _unplaced_on_rays(shapes, homogeneous, visibility & ~placed, fit.depths), fit
+    points = homogeneous(rays)
+    shapes = _fill_hidden(fit.depths[:, :, None] * points, placed)
+    return _unplaced_on_rays(shapes, points, visibility & ~placed, fit.depths), fit
 
 
 def _unplaced_on_rays(

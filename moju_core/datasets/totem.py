@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from moju_core.metrics import align, center_frames
+from moju_core.priors.dense_depth import homogeneous
 
 __all__ = [
     "TOTEM_NAMES",
@@ -94,8 +95,7 @@ def pixels_to_rays(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
         ``(x', y')`` with ``inv(K) [u, v, 1] = [x', y', 1]`` (dimensionless).
     """
     pixels = np.asarray(pixels, dtype=np.float64)
-    homogeneous = np.concatenate([pixels, np.ones(pixels.shape[:-1] + (1,))], axis=-1)
-    normalised = homogeneous @ np.linalg.inv(np.asarray(K, dtype=np.float64)).T
+    normalised = homogeneous(pixels) @ np.linalg.inv(np.asarray(K, dtype=np.float64)).T
     return normalised[..., :2] / normalised[..., 2:3]
 
 
@@ -103,7 +103,7 @@ def depths_to_shapes(depths: np.ndarray, rays: np.ndarray) -> np.ndarray:
     """Back-project depths along rays: ``depth * [x', y', 1]``, shape (F, P, 3)."""
     depths = np.asarray(depths, dtype=np.float64)
     rays = np.asarray(rays, dtype=np.float64)
-    return depths[..., None] * np.concatenate([rays, np.ones(rays.shape[:-1] + (1,))], axis=-1)
+    return depths[..., None] * homogeneous(rays)
 
 
 def load_totem(directory: str | Path, name: str) -> TotemSequence:

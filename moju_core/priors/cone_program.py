@@ -40,6 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from moju_core.priors.dense_depth import homogeneous
+
 __all__ = ["CLARABEL_SETTINGS", "ConeSolution", "solve_max_depth_cone"]
 
 #: Clarabel settings changed from its defaults, for every solve. Iterative refinement (up to
@@ -206,7 +208,7 @@ def _edge_image_pairs(rays: np.ndarray, seen: np.ndarray, edges: np.ndarray) -> 
     edge_var[used_edges] = np.arange(used_edges.size)
     n_cones = frame_of.size
 
-    q = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
+    q = homogeneous(rays)
     i_pts, j_pts = edges[edge_of, 0], edges[edge_of, 1]
     rows = np.arange(n_cones)
     cols = np.concatenate([var_index[frame_of, i_pts], var_index[frame_of, j_pts]])

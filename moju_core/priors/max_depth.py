@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from moju_core.priors.cut_off_groups import hold_cut_off_groups
-from moju_core.priors.dense_depth import interpolate_depths, refine_depths
+from moju_core.priors.dense_depth import homogeneous, interpolate_depths, refine_depths
 from moju_core.priors.key_images import MAX_KEY_IMAGES, solve_by_key_images
 from moju_core.priors.neighbour_graph import neighbour_edges, spread_anchors, visibility_of
 
@@ -110,6 +110,7 @@ def _dense_depths(
     *,
     k: int,
     refine_iter: int,
+    n_anchor_edges: int,
     seconds: dict[str, float],
 ) -> tuple[np.ndarray, float, int]:
     """Depths of all points from the anchors' (steps 3 and 4 of the pipeline).
@@ -126,6 +127,8 @@ def _dense_depths(
         Image neighbours per point of the dense graph.
     refine_iter : int
         Iterations of the dense refinement (0: interpolation only, and no dense graph).
+    n_anchor_edges : int
+        Edges of the anchors' graph.
     seconds : dict of str to float
         Wall times (seconds): ``interpolate`` and ``refine`` are set, the dense graph's time
         is added to ``graph``.
@@ -137,14 +140,15 @@ def _dense_depths(
     violation : float
         Mean relative excess of the dense edges over their bounds (0 without refinement).
     n_edges : int
-        Edges of the dense neighbour graph (0 when it is not built).
+        Edges of the graph whose bounds the depths meet: the dense neighbour graph when
+        refined, else ``n_anchor_edges``.
     """
     t0 = time.perf_counter()
     depths = interpolate_depths(rays, seen, anchors, anchor_depths)
     seconds["interpolate"] = time.perf_counter() - t0
     seconds["refine"] = 0.0
     if refine_iter <= 0:
-        return depths, 0.0, 0
+        return depths, 0.0, n_anchor_edges
     t0 = time.perf_counter()
     edges = neighbour_edges(rays, seen, k=k)
     seconds["graph"] += time.perf_counter() - t0
@@ -176,8 +180,7 @@ def _scaled_shapes(
     depths = np.where(seen & (depths > 0), depths, np.nan)
     if np.any(np.isfinite(depths)):
         depths = depths / np.nanmean(depths)  # the global scale: mean seen depth 1
-    q = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
-    return depths, depths[..., None] * q
+    return depths, depths[..., None] * homogeneous(rays)
 
 
 def max_depth_shapes(
@@ -259,10 +262,10 @@ def max_depth_shapes(
         depths = cone_depths
         seconds["interpolate"] = seconds["refine"] = 0.0
     else:
-        depths, violation, dense_edges = _dense_depths(
-            rays, seen, anchors, cone_depths, k=k, refine_iter=refine_iter, seconds=seconds
+        depths, violation, n_edges = _dense_depths(
+            rays, seen, anchors, cone_depths, k=k, refine_iter=refine_iter,
+            n_anchor_edges=n_edges, seconds=seconds,
         )
-        n_edges = dense_edges or n_edges
 
     depths, shapes = _scaled_shapes(rays, seen, depths)
     seconds["total"] = time.perf_counter() - t_start
