@@ -29,14 +29,13 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from footage import scene_video, visible_e3d
+from footage import procrustes_mean, scene_video, visible_e3d
 from harness import RESULTS, provenance, table, write_json, write_markdown
 from tracking import perfect_tracks
 
 import moju_core.priors.cone_program as cone_program
 from moju_core.datasets.footage_scenes import FOOTAGE_KINDS
 from moju_core.footage.tracking import track_frames
-from moju_core.metrics import align
 from moju_core.priors import dense_depth
 from moju_core.priors.cut_off_groups import hold_cut_off_groups
 from moju_core.priors.key_images import solve_by_key_images
@@ -87,17 +86,12 @@ def rigid_depths(rays: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Depths (F, A) along the rays of the best single rigid shape of ``truth`` (F, A, 3):
     the generalised Procrustes mean of the true frames, scaled and posed onto each frame."""
     centred = truth - truth.mean(axis=1, keepdims=True)
-    mean = centred[0]
-    for _ in range(10):
-        target = np.broadcast_to(mean, centred.shape)
-        norms = np.linalg.norm(centred, axis=(1, 2))
-        scaled = centred * (np.linalg.norm(mean) / norms)[:, None, None]
-        mean = align(scaled, target, "procrustes").mean(axis=0)
+    mean = procrustes_mean(truth)
     posed = np.empty_like(truth)
     for f in range(truth.shape[0]):
         u, s, vt = np.linalg.svd(centred[f].T @ mean)
         posed[f] = (s.sum() / np.sum(mean**2)) * mean @ (u @ vt).T + truth[f].mean(axis=0)
-    q = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], axis=2)
+    q = dense_depth.homogeneous(rays)
     return np.sum(posed * q, axis=2) / np.sum(q * q, axis=2)  # nearest points of the rays
 
 

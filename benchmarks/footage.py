@@ -83,20 +83,26 @@ def scene_video(
     )
 
 
-def rigid_baselines(truth: np.ndarray) -> dict[str, float]:
-    """e3D of single rigid shapes scaled and aligned to every frame of ``truth`` (F, P, 3).
-
-    ``first``: the first true frame; ``mean``: the generalised Procrustes mean (frames scaled
-    and rotated onto the running mean, 10 rounds).
-    """
-    n_frames = truth.shape[0]
-    centred = center_frames(truth)
+def procrustes_mean(shapes: np.ndarray) -> np.ndarray:
+    """The generalised Procrustes mean (P, 3) of ``shapes`` (F, P, 3): frames centred, scaled
+    and rotated onto the running mean, 10 rounds (the first frame starts it)."""
+    centred = center_frames(shapes)
     mean = centred[0]
     for _ in range(10):
         target = np.broadcast_to(mean, centred.shape)
-        norms = np.linalg.norm(centred.reshape(n_frames, -1), axis=1)
+        norms = np.linalg.norm(centred.reshape(len(centred), -1), axis=1)
         scaled = centred * (np.linalg.norm(mean) / norms)[:, None, None]
         mean = align(scaled, target, "procrustes").mean(axis=0)
+    return mean
+
+
+def rigid_baselines(truth: np.ndarray) -> dict[str, float]:
+    """e3D of single rigid shapes scaled and aligned to every frame of ``truth`` (F, P, 3).
+
+    ``first``: the first true frame; ``mean``: :func:`procrustes_mean`.
+    """
+    n_frames = truth.shape[0]
+    mean = procrustes_mean(truth)
     return {
         "first": scaled_e3d(np.repeat(truth[:1], n_frames, axis=0), truth),
         "mean": scaled_e3d(np.repeat(mean[None], n_frames, axis=0), truth),
