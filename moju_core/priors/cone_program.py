@@ -148,7 +148,7 @@ def solve_max_depth_cone(
     if best is not None and rigidity > 0 and n_rounds > 0:
         cost = _consistency_cost(program, best, rigidity, outlier_price)
         status, best, n_rounds_run, shrink = _consistency_rounds(
-            program, cost, best, status, n_rounds=n_rounds, tol=tol
+            program, cost, best, best[program.depths], status, n_rounds=n_rounds, tol=tol
         )
         n_solves += n_rounds_run
     depths, lengths = _unpack(pairs, best)
@@ -397,18 +397,19 @@ def _linearised_lower(program: _ConeProgram, previous: np.ndarray) -> sp.csr_mat
 
 
 def _consistency_rounds(
-    program: _ConeProgram, cost: np.ndarray, best: np.ndarray, status: str,
+    program: _ConeProgram, cost: np.ndarray, best: np.ndarray, start: np.ndarray, status: str,
     *, n_rounds: int, tol: float,
 ) -> tuple[str, np.ndarray, int, float]:
-    """Linearise the lower bounds around ``best`` (n_x,) and re-solve, up to ``n_rounds`` times.
+    """Linearise the lower bounds around the depths ``start`` (V,), then around each round's
+    solution, and re-solve, up to ``n_rounds`` times.
 
-    Stops early when a round fails (keeping the last solution) or when the depths change by
-    less than ``tol``. Returns the last status, the last solution, the rounds solved and the
-    mean slack of the last solution.
+    ``best`` (n_x,) is the solution kept if the first round fails. Stops early when a round
+    fails (keeping the last solution) or when the depths change by less than ``tol``. Returns
+    the last status, the last solution, the rounds solved and the mean slack of the last
+    solution.
     """
-    n_solved, shrink = 0, 0.0
+    n_solved, shrink, previous = 0, 0.0, start
     for _ in range(n_rounds):
-        previous = best[program.depths]
         status, x = _solve_program(program, cost, _linearised_lower(program, previous))
         n_solved += 1
         if x is None:
@@ -416,6 +417,7 @@ def _consistency_rounds(
         best = x
         shrink = float(np.mean(best[program.slacks]))
         change = np.max(np.abs(best[program.depths] - previous)) / max(np.max(previous), 1e-300)
+        previous = best[program.depths]
         if change < tol:
             break
     return status, best, n_solved, shrink
