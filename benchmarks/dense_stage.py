@@ -14,12 +14,20 @@ and Procrustes):
 ``--oracle-start`` runs the anchors' consistency rounds from the true depths and from the
 best single rigid shape of the truth posed in every frame: the cost the program reaches
 from each against the cost it reaches from its own start, with the anchors' e3D of each. It
-is a diagnostic (it reads the truth), not a method.
+is a diagnostic (it reads the truth), not a method. ``--smoothed-start`` does the same from
+two starts made from the tracks alone, the plain program's depths smoothed in each image:
+``bent`` (the polynomial of degree 2 in ``(x', y')`` closest to the inverse depths: a plane
+and one bend) and ``local`` (each anchor's inverse depth replaced by the weighted plane
+through its 8 nearest anchors, the interpolation's local fit).
 
     PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds 0 1 2 10 11 12 \\
         --held-out 20 21 22 30 31 32
     PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds 11 --held-out --oracle-start \\
         --tag _oracle_start
+    PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds 20 --held-out --oracle-start \\
+        --tag _oracle_start_20
+    PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds 0 1 2 11 20 --held-out \\
+        --smoothed-start --tag _smoothed_start
 """
 
 from __future__ import annotations
@@ -95,35 +103,76 @@ def rigid_depths(rays: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.sum(posed * q, axis=2) / np.sum(q * q, axis=2)  # nearest points of the rays
 
 
-def oracle_start(rays, seen, edges, truth) -> dict[str, float]:
-    """Costs and anchors' e3D of the consistency rounds from their own start, from the true
-    depths and from the best single rigid shape's (:func:`rigid_depths`), on all images
-    jointly; ``truth`` (F, A, 3) the anchors' true 3D paths."""
+def oracle_starts(rays, first, truth) -> dict[str, np.ndarray]:
+    """Starts (F, A) read from the truth (F, A, 3): its depths, and :func:`rigid_depths`."""
+    return {"true start": truth[..., 2], "rigid start": rigid_depths(rays, truth)}
+
+
+def smoothed_starts(rays, first, truth) -> dict[str, np.ndarray]:
+    """Starts (F, A) from the plain program's depths ``first`` (F, A), smoothed per image."""
+    return {"bent start": bent_depths(rays, first), "local start": local_plane_depths(rays, first)}
+
+
+def bent_depths(rays: np.ndarray, depths: np.ndarray) -> np.ndarray:
+    """Per image, the depths whose inverse is the polynomial of degree 2 in ``(x', y')``
+    closest to ``1 / depths`` (F, A); NaN stays NaN."""
+    out = np.full(depths.shape, np.nan)
+    x, y = rays[..., 0], rays[..., 1]
+    basis = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
+    for f, row in enumerate(depths):
+        known = np.isfinite(row)
+        fit = np.linalg.lstsq(basis[f, known], 1.0 / row[known], rcond=None)[0]
+        out[f, known] = 1.0 / np.maximum(basis[f, known] @ fit, 1e-3 / row[known].max())
+    return out
+
+
+def local_plane_depths(rays: np.ndarray, depths: np.ndarray, m: int = 8) -> np.ndarray:
+    """Each depth of ``depths`` (F, A) replaced by the local plane fit of
+    ``dense_depth.interpolate_depths`` through its ``m`` nearest points' inverse depths (its
+    own included), as if it were not an anchor; NaN stays NaN."""
+    out = np.full(depths.shape, np.nan)
+    for f, row in enumerate(depths):
+        known = np.flatnonzero(np.isfinite(row))
+        seen = np.zeros((1, row.size), dtype=bool)
+        seen[0, known] = True
+        # Every point is a target; anchors are copies placed 1e-9 away so none keeps its own.
+        shifted = np.concatenate([rays[f : f + 1], rays[f : f + 1, known] + 1e-9], axis=1)
+        anchors = row.size + np.arange(known.size)
+        both = np.concatenate([seen, np.zeros((1, known.size), dtype=bool)], axis=1)
+        targets = dense_depth.interpolate_depths(shifted, both, anchors, row[None, known], m=m)
+        out[f, known] = targets[0, known]
+    return out
+
+
+def rounds_from_starts(rays, seen, edges, truth, make_starts) -> dict[str, float]:
+    """Costs and anchors' e3D of the consistency rounds (all images jointly) from their own
+    start and from each start of ``make_starts(rays, first_depths, truth)``; ``truth``
+    (F, A, 3) the anchors' true 3D paths."""
     original = cone_program._consistency_rounds
     costs: dict[str, float] = {}
     start: dict[str, np.ndarray] = {}
 
-    def rounds(program, cost, best, status, *, n_rounds, tol):
-        if "truth" in start:
-            best = best.copy()
-            true = start["truth"][program.pairs.constrained]
-            best[program.depths] = true * np.mean(best[program.depths]) / np.mean(true)
-        result = original(program, cost, best, status, n_rounds=n_rounds, tol=tol)
+    def rounds(program, cost, best, own, status, *, n_rounds, tol):
+        first = cone_program._unpack(program.pairs, best)[0]
+        start.setdefault("starts", make_starts(rays, first, truth))
+        if "label" in start:
+            given = start["starts"][start["label"]][program.pairs.constrained]
+            own = given * np.mean(best[program.depths]) / np.mean(given)
+        result = original(program, cost, best, own, status, n_rounds=n_rounds, tol=tol)
         costs["cost"] = float(cost @ result[1])
         return result
 
     cone_program._consistency_rounds = rounds
     out: dict[str, float] = {}
     try:
-        starts = {"true start": truth[..., 2], "rigid start": rigid_depths(rays, truth)}
-        for label in ("own start", *starts):
-            if label in starts:
-                start["truth"] = starts[label]
+        labels = make_starts(rays, np.where(seen, 1.0, np.nan), truth)
+        for label in ("own start", *labels):
+            if label != "own start":
+                start["label"] = label
             sol = cone_program.solve_max_depth_cone(rays, seen, edges, rigidity=RIGIDITY)
             placed = seen & np.isfinite(sol.depths)
             shapes = _scaled_shapes(rays, placed, sol.depths)[1]
             out[f"{label} cost"] = costs["cost"]
-            out[f"{label} shrink"] = sol.shrink
             out[f"{label} e3d"] = float(visible_e3d(np.nan_to_num(shapes), truth, placed))
     finally:
         cone_program._consistency_rounds = original
@@ -146,8 +195,9 @@ def run_scene(kind: str, seed: int, args: argparse.Namespace) -> list[dict[str, 
         r, s = rays[:, anchors], seen[:, anchors]
         edges = neighbour_edges(r, s, k=K)
         row: dict[str, Any] = {"kind": kind, "seed": seed, "source": label, "points": n_points}
-        if args.oracle_start:
-            row.update(oracle_start(r, s, edges, truth[:, anchors]))
+        if args.oracle_start or args.smoothed_start:
+            starts = oracle_starts if args.oracle_start else smoothed_starts
+            row.update(rounds_from_starts(r, s, edges, truth[:, anchors], starts))
         else:
             cone = solve_by_key_images(r, s, edges, rigidity=RIGIDITY, outlier_price=np.inf)
             depths = hold_cut_off_groups(r, s, edges, cone.depths, cone.lengths, cone.shrink)
@@ -167,6 +217,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2, 10, 11, 12])
     parser.add_argument("--held-out", type=int, nargs="*", default=[20, 21, 22, 30, 31, 32])
     parser.add_argument("--oracle-start", action="store_true")
+    parser.add_argument("--smoothed-start", action="store_true")
     parser.add_argument("--tag", default="")
     args = parser.parse_args()
     args.frames, args.width, args.height, args.mesh = 30, 640, 480, 6000
