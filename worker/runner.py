@@ -63,6 +63,29 @@ class MojuWorker(Worker):
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self.request_force_stop)
 
+    def unsubscribe(self) -> None:
+        """Stop listening on the worker's command channel, within about a second.
+
+        RQ unsubscribes first and then stops its listener thread, counting on the
+        unsubscription's reply to wake the thread from its 60-second read. With redis-py 8.2
+        the stop waits for the thread to end; if the thread reads that reply before the stop
+        clears its running flag, it goes back to waiting for a subscription, and the worker's
+        exit (a shutdown, the interrupted job's record) waits the full 60 seconds. Here the
+        flag is cleared first, so the reply ends the thread.
+        """
+        thread = self.pubsub_thread
+        if not thread:
+            return
+        channel = self.pubsub_channel_name
+        self.log.info("Worker %s: unsubscribing from channel %s", self.name, channel)
+        try:
+            thread.stop(timeout=0)  # redis-py 8.2 and later: clear the flag, do not wait
+        except TypeError:
+            thread.stop()  # earlier redis-py: only clears the flag
+        self.pubsub.unsubscribe()
+        thread.join(timeout=1)
+        self.pubsub.close()
+
     def execute_job(self, job: RQJob, queue: Queue) -> None:
         """Run one job in a work horse, noting the job if a shutdown interrupts it."""
         try:

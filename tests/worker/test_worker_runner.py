@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import signal
+import threading
+import time
 
 import pytest
+from redis import Redis
 from redis.exceptions import ConnectionError as RedisConnectionError
+from rq import Queue
 
 from service.settings import get_settings
 from worker import runner
@@ -85,3 +89,28 @@ def test_a_signal_rq_ignores_leaves_the_worker_listening(
     worker.request_force_stop(signal.SIGTERM, None)
     for sig in (signal.SIGINT, signal.SIGTERM):
         assert signal.getsignal(sig) == worker.request_force_stop
+
+
+def test_unsubscribing_does_not_wait_for_the_listeners_long_read(redis_url: str) -> None:
+    """The listener thread has already read the unsubscription's reply (what a loaded machine
+    makes likely) and waits up to 60 s for a subscription: leaving the channel must still end
+    at once (RQ 3.0's own unsubscribe waited those 60 s with redis-py 8.2, past the shutdown
+    deadline of ``moju serve`` and of the tests that stop a worker)."""
+    connection = Redis.from_url(redis_url)
+    worker = runner.MojuWorker([Queue("unsubscribe-test", connection=connection)],
+                               connection=connection, name="unsubscribing")
+    worker.subscribe()
+    until = time.monotonic() + 10
+    while not worker.pubsub.subscribed and time.monotonic() < until:
+        time.sleep(0.01)
+    assert worker.pubsub.subscribed
+    worker.pubsub.unsubscribe()  # the reply reaches the listener before the stop below
+    while worker.pubsub.subscribed and time.monotonic() < until:
+        time.sleep(0.01)
+    assert not worker.pubsub.subscribed
+
+    leaving = threading.Thread(target=worker.unsubscribe, daemon=True)
+    leaving.start()
+    leaving.join(timeout=10)
+    assert not leaving.is_alive()
+    connection.close()
