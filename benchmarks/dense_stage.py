@@ -135,7 +135,8 @@ def local_plane_depths(rays: np.ndarray, depths: np.ndarray, m: int = 8) -> np.n
         known = np.flatnonzero(np.isfinite(row))
         seen = np.zeros((1, row.size), dtype=bool)
         seen[0, known] = True
-        # Every point is a target; anchors are copies placed 1e-9 away so none keeps its own.
+        # Every point is a target, and the anchors are copies of the points 1e-9 away: each
+        # point's fit includes its own depth, and no point keeps it as an anchor would.
         shifted = np.concatenate([rays[f : f + 1], rays[f : f + 1, known] + 1e-9], axis=1)
         anchors = row.size + np.arange(known.size)
         both = np.concatenate([seen, np.zeros((1, known.size), dtype=bool)], axis=1)
