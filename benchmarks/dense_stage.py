@@ -28,6 +28,8 @@ through its 8 nearest anchors, the interpolation's local fit).
         --tag _oracle_start_20
     PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds 0 1 2 11 20 --held-out \\
         --smoothed-start --tag _smoothed_start
+    PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds --held-out 21 22 30 \\
+        --smoothed-start --tag _smoothed_start_held_out_a  # and 31 32, _held_out_b
 """
 
 from __future__ import annotations
@@ -115,12 +117,15 @@ def smoothed_starts(rays, first, truth) -> dict[str, np.ndarray]:
 
 def bent_depths(rays: np.ndarray, depths: np.ndarray) -> np.ndarray:
     """Per image, the depths whose inverse is the polynomial of degree 2 in ``(x', y')``
-    closest to ``1 / depths`` (F, A); NaN stays NaN."""
-    out = np.full(depths.shape, np.nan)
+    closest to ``1 / depths`` (F, A); NaN stays NaN, and an image with fewer depths than the
+    6 coefficients keeps its own."""
+    out = np.array(depths, dtype=np.float64)
     x, y = rays[..., 0], rays[..., 1]
     basis = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
     for f, row in enumerate(depths):
         known = np.isfinite(row)
+        if known.sum() < basis.shape[-1]:
+            continue
         fit = np.linalg.lstsq(basis[f, known], 1.0 / row[known], rcond=None)[0]
         out[f, known] = 1.0 / np.maximum(basis[f, known] @ fit, 1e-3 / row[known].max())
     return out
