@@ -51,6 +51,7 @@ from moju_core.priors.cut_off_groups import hold_cut_off_groups
 from moju_core.priors.key_images import solve_by_key_images
 from moju_core.priors.max_depth import _scaled_shapes
 from moju_core.priors.neighbour_graph import neighbour_edges, spread_anchors
+from moju_core.priors.smoothed_starts import smoothed_start_depths
 
 OUT = RESULTS / "surface_prior"
 N_ANCHOR, K, RIGIDITY, REFINE_ITER = 200, 8, 30.0, 60
@@ -112,42 +113,8 @@ def oracle_starts(rays, first, truth) -> dict[str, np.ndarray]:
 
 def smoothed_starts(rays, first, truth) -> dict[str, np.ndarray]:
     """Starts (F, A) from the plain program's depths ``first`` (F, A), smoothed per image."""
-    return {"bent start": bent_depths(rays, first), "local start": local_plane_depths(rays, first)}
-
-
-def bent_depths(rays: np.ndarray, depths: np.ndarray) -> np.ndarray:
-    """Per image, the depths whose inverse is the polynomial of degree 2 in ``(x', y')``
-    closest to ``1 / depths`` (F, A); NaN stays NaN, and an image with fewer depths than the
-    6 coefficients keeps its own."""
-    out = np.array(depths, dtype=np.float64)
-    x, y = rays[..., 0], rays[..., 1]
-    basis = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
-    for f, row in enumerate(depths):
-        known = np.isfinite(row)
-        if known.sum() < basis.shape[-1]:
-            continue
-        fit = np.linalg.lstsq(basis[f, known], 1.0 / row[known], rcond=None)[0]
-        out[f, known] = 1.0 / np.maximum(basis[f, known] @ fit, 1e-3 / row[known].max())
-    return out
-
-
-def local_plane_depths(rays: np.ndarray, depths: np.ndarray, m: int = 8) -> np.ndarray:
-    """Each depth of ``depths`` (F, A) replaced by the local plane fit of
-    ``dense_depth.interpolate_depths`` through its ``m`` nearest points' inverse depths (its
-    own included), as if it were not an anchor; NaN stays NaN."""
-    out = np.full(depths.shape, np.nan)
-    for f, row in enumerate(depths):
-        known = np.flatnonzero(np.isfinite(row))
-        seen = np.zeros((1, row.size), dtype=bool)
-        seen[0, known] = True
-        # Every point is a target, and the anchors are copies of the points 1e-9 away: each
-        # point's fit includes its own depth, and no point keeps it as an anchor would.
-        shifted = np.concatenate([rays[f : f + 1], rays[f : f + 1, known] + 1e-9], axis=1)
-        anchors = row.size + np.arange(known.size)
-        both = np.concatenate([seen, np.zeros((1, known.size), dtype=bool)], axis=1)
-        targets = dense_depth.interpolate_depths(shifted, both, anchors, row[None, known], m=m)
-        out[f, known] = targets[0, known]
-    return out
+    bent, local = smoothed_start_depths(rays, first)
+    return {"bent start": bent, "local start": local}
 
 
 def rounds_from_starts(rays, seen, edges, truth, make_starts) -> dict[str, float]:

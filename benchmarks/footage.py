@@ -30,13 +30,18 @@ every seed. Results: ``benchmarks/results/footage/footage[_quick].json`` and ``.
     PYTHONPATH=. nice python benchmarks/footage.py --tracks-only  # pixel errors by slant, no solve
     PYTHONPATH=. nice python benchmarks/footage.py --seeds 2 1 --held-out --drop-px 2 \\
         --no-ortho --tag _drop2px  # oracle: without the tracks that err by > 2 px
+    PYTHONPATH=. nice python benchmarks/footage.py --no-ortho --smoothed-starts \\
+        --tag _smoothed_starts  # ablation: the prior's smoothed starts, side by side
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import time
 import warnings
+from collections.abc import Iterator
 from dataclasses import replace
 from typing import Any
 
@@ -44,7 +49,7 @@ import numpy as np
 from harness import RESULTS, provenance, table, write_json, write_markdown
 from tracking import perfect_tracks
 
-from moju_core import SolverParams, reconstruct
+from moju_core import SolverParams, perspective, reconstruct
 from moju_core.cameras.intrinsics import DEFAULT_FOCAL_FACTOR, Intrinsics
 from moju_core.datasets.footage_scenes import FOOTAGE_KINDS, FootageScene, footage_scene
 from moju_core.datasets.totem import out_of_plane_ratio, scaled_e3d
@@ -118,10 +123,25 @@ def visible_e3d(estimate: np.ndarray, truth: np.ndarray, visible: np.ndarray) ->
     )
 
 
-def solve(source: Tracks, camera: Intrinsics | None, truth: np.ndarray) -> dict[str, Any]:
-    """Reconstruct ``source`` with default parameters (seed 0) and score it."""
+@contextlib.contextmanager
+def prior_options(**options: Any) -> Iterator[None]:
+    """Within the block, the perspective prior runs ``max_depth_shapes`` with ``options``
+    (its keyword arguments, for an ablation of a setting the solver does not expose)."""
+    original = perspective.max_depth_shapes
+    perspective.max_depth_shapes = functools.partial(original, **options)
+    try:
+        yield
+    finally:
+        perspective.max_depth_shapes = original
+
+
+def solve(
+    source: Tracks, camera: Intrinsics | None, truth: np.ndarray, **prior: Any
+) -> dict[str, Any]:
+    """Reconstruct ``source`` with default parameters (seed 0), the surface prior's options
+    ``prior`` (none: its defaults), and score it."""
     start = time.perf_counter()
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), prior_options(**prior):
         warnings.simplefilter("ignore")
         result = reconstruct(
             source.W, SolverParams(seed=0), visibility=source.visibility, intrinsics=camera
@@ -267,6 +287,10 @@ def run_scene(kind: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
         solves.update({"ortho tracks": (kept, None), "ortho perfect": (perfect, None)})
     for label, (source, intrinsics) in solves.items():
         row[label] = solve(source, intrinsics, truth)
+    if args.smoothed_starts:  # side by side with the default solves, for the time ratio
+        for label in ("tracks", "perfect"):
+            source, intrinsics = solves[label]
+            row[f"starts {label}"] = solve(source, intrinsics, truth, smoothed_starts=True)
     return judge(row)
 
 
@@ -398,6 +422,8 @@ def markdown(splits: dict[str, list[dict[str, Any]]]) -> list[str]:
         ],
         diag,
     )
+    if any("starts tracks" in r for rows in splits.values() for r in rows):
+        body += ["", *smoothed_starts_table(splits)]
     body += ["", "## Means per split", ""]
     for split, rows in splits.items():
         body.append(
@@ -422,6 +448,11 @@ def main() -> None:
     parser.add_argument("--mesh", type=int, default=6000, help="vertices of the sheet's mesh")
     parser.add_argument("--no-ortho", action="store_true", help="skip the orthographic solves")
     parser.add_argument("--tag", default="", help="suffix of the result files")
+    parser.add_argument(
+        "--smoothed-starts",
+        action="store_true",
+        help="ablation: also solve with the prior's smoothed starts (max_depth_shapes option)",
+    )
     parser.add_argument(
         "--tracks-only", action="store_true", help="render and track only: the pixel errors"
     )
@@ -455,6 +486,26 @@ def main() -> None:
             )
             splits.setdefault(split, []).append(row)
             write_results(name, meta, settings, splits)  # after every scene: long runs
+
+
+def smoothed_starts_table(splits: dict[str, list[dict[str, Any]]]) -> list[str]:
+    """``--smoothed-starts``: the default solves against those with the prior's smoothed
+    starts, every entry and the visible ones, with the time ratio of each pair."""
+    header = ["split", "kind", "seed", "tracks"]
+    header += ["e3D default", "e3D starts", "e3D vis default", "e3D vis starts"]
+    header += ["oop default", "oop starts", "time ratio"]
+    lines = []
+    for split, rows in splits.items():
+        for r in rows:
+            for label in ("tracks", "perfect"):
+                a, b = r[label], r[f"starts {label}"]
+                lines.append([
+                    split, r["kind"], r["seed"], label, _fmt(a["e3d"]), _fmt(b["e3d"]),
+                    _fmt(a["e3d_visible"]), _fmt(b["e3d_visible"]),
+                    _fmt(a["out_of_plane"], 2), _fmt(b["out_of_plane"], 2),
+                    _fmt(b["seconds"] / a["seconds"], 2),
+                ])  # fmt: skip
+    return ["## The prior's smoothed starts (ablation)", "", *table(header, lines)]
 
 
 def write_tracks_only(

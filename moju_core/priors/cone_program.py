@@ -41,6 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from moju_core.priors.dense_depth import homogeneous
+from moju_core.priors.smoothed_starts import smoothed_start_depths
 
 __all__ = ["CLARABEL_SETTINGS", "ConeSolution", "solve_max_depth_cone"]
 
@@ -99,6 +100,7 @@ def solve_max_depth_cone(
     tol: float = 1e-3,
     outlier_price: float = np.inf,
     lengths: np.ndarray | None = None,
+    smoothed_starts: bool = False,
 ) -> ConeSolution:
     """Solve the maximum-depth cone program on a (small) set of points.
 
@@ -130,6 +132,10 @@ def solve_max_depth_cone(
         its units), instead of unknowns scaled to mean 1. Given the lengths the images are
         independent: :mod:`~moju_core.priors.key_images` solves them one at a time (pinned by
         equality rows, the lengths would still couple several images in the factorisation).
+    smoothed_starts : bool, default False
+        Also run the consistency rounds from the plain solution smoothed in each image
+        (:mod:`~moju_core.priors.smoothed_starts`), and keep the rounds' result of lowest
+        cost; the rounds then cost three times as much.
 
     Returns
     -------
@@ -147,8 +153,11 @@ def solve_max_depth_cone(
     n_solves, shrink = 1, 0.0
     if best is not None and rigidity > 0 and n_rounds > 0:
         cost = _consistency_cost(program, best, rigidity, outlier_price)
-        status, best, n_rounds_run, shrink = _consistency_rounds(
-            program, cost, best, best[program.depths], status, n_rounds=n_rounds, tol=tol
+        starts = [best[program.depths]]
+        if smoothed_starts:
+            starts += _smoothed(rays, pairs, best)
+        status, best, n_rounds_run, shrink = _cheapest_rounds(
+            program, cost, best, starts, status, n_rounds=n_rounds, tol=tol
         )
         n_solves += n_rounds_run
     depths, lengths = _unpack(pairs, best)
@@ -421,6 +430,36 @@ def _consistency_rounds(
         if change < tol:
             break
     return status, best, n_solved, shrink
+
+
+def _smoothed(rays: np.ndarray, pairs: _EdgeImagePairs, first: np.ndarray) -> list[np.ndarray]:
+    """Starts (each (V,)) from the plain solution ``first`` (n_x,) smoothed per image; an
+    entry the smoothing leaves unknown keeps its plain depth."""
+    plain = first[: pairs.n_var]
+    depths = _unpack(pairs, first)[0]
+    starts = []
+    for smoothed in smoothed_start_depths(rays, depths):
+        start = smoothed[pairs.constrained]
+        starts.append(np.where(np.isfinite(start) & (start > 0), start, plain))
+    return starts
+
+
+def _cheapest_rounds(
+    program: _ConeProgram, cost: np.ndarray, best: np.ndarray, starts: list[np.ndarray],
+    status: str, *, n_rounds: int, tol: float,
+) -> tuple[str, np.ndarray, int, float]:
+    """:func:`_consistency_rounds` from each of ``starts`` (each (V,)); the result of lowest
+    ``cost`` among those whose rounds solved, else the first start's, with the rounds solved
+    summed over the starts. Every round's solution is feasible for the lower bounds it
+    linearises, so the costs compare like for like; ``best`` (the plain solution, kept when a
+    first round fails) is not, and never competes."""
+    results = [
+        _consistency_rounds(program, cost, best, start, status, n_rounds=n_rounds, tol=tol)
+        for start in starts
+    ]
+    solved = [r for r in results if r[1] is not best] or results[:1]
+    chosen = min(solved, key=lambda r: float(cost @ r[1]))
+    return chosen[0], chosen[1], sum(r[2] for r in results), chosen[3]
 
 
 def _unpack(pairs: _EdgeImagePairs, x: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:

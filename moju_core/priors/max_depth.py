@@ -194,6 +194,7 @@ def max_depth_shapes(
     outlier_price: float = np.inf,
     refine_iter: int = 0,
     n_key_images: int = MAX_KEY_IMAGES,
+    smoothed_starts: bool = False,
 ) -> SurfaceFit:
     """Per-image 3D shapes from perspective tracks by the maximum-depth heuristic.
 
@@ -224,6 +225,9 @@ def max_depth_shapes(
     n_key_images : int, default :data:`~moju_core.priors.key_images.MAX_KEY_IMAGES`
         Most images whose cone program is solved jointly; the others are solved alone with
         their edge lengths (:func:`~moju_core.priors.key_images.solve_by_key_images`).
+    smoothed_starts : bool, default False
+        Also start the consistency rounds from the plain program's depths smoothed per image
+        and keep the cheapest result (:mod:`~moju_core.priors.smoothed_starts`).
 
     Returns
     -------
@@ -249,8 +253,7 @@ def max_depth_shapes(
 
     cone = solve_by_key_images(
         rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity,
-        outlier_price=outlier_price,
-        n_key=n_key_images,
+        outlier_price=outlier_price, n_key=n_key_images, smoothed_starts=smoothed_starts,
     )
     cone_depths = hold_cut_off_groups(
         rays[:, anchors], seen[:, anchors], anchor_edges, cone.depths, cone.lengths, cone.shrink

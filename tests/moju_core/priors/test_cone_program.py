@@ -35,3 +35,22 @@ def test_settings_that_fail_fall_back_to_the_defaults(small_program, monkeypatch
     solved = solve_max_depth_cone(*small_program, n_rounds=0)
     assert solved.status == "Solved"
     np.testing.assert_allclose(solved.depths, default.depths)
+
+
+def test_smoothed_starts_keep_the_cheapest_rounds(small_program, monkeypatch):
+    own = solve_max_depth_cone(*small_program)
+    runs: list[tuple[float, np.ndarray]] = []
+    rounds = cone_program._consistency_rounds
+
+    def recorded(program, cost, best, start, status, **kwargs):
+        result = rounds(program, cost, best, start, status, **kwargs)
+        runs.append((float(cost @ result[1]), cone_program._unpack(program.pairs, result[1])[0]))
+        return result
+
+    monkeypatch.setattr(cone_program, "_consistency_rounds", recorded)
+    chosen = solve_max_depth_cone(*small_program, smoothed_starts=True)
+    assert len(runs) == 3  # the own start, then the bent and local-plane starts
+    assert chosen.status == "Solved" and chosen.n_solves > own.n_solves
+    np.testing.assert_array_equal(runs[0][1], own.depths)  # the own start is today's solve
+    cheapest = min(runs, key=lambda run: run[0])[1]
+    np.testing.assert_array_equal(chosen.depths, cheapest)
