@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -43,7 +44,10 @@ import scipy.sparse as sp
 from moju_core.priors.dense_depth import homogeneous
 from moju_core.priors.smoothed_starts import smoothed_start_depths
 
-__all__ = ["CLARABEL_SETTINGS", "ConeSolution", "solve_max_depth_cone"]
+__all__ = ["CLARABEL_SETTINGS", "ConeSolution", "LengthScale", "solve_max_depth_cone"]
+
+#: How the unknown edge lengths are scaled (see :func:`solve_max_depth_cone`).
+LengthScale = Literal["edges", "pairs"]
 
 #: Clarabel settings changed from its defaults, for every solve. Iterative refinement (up to
 #: 10 extra back-substitutions per Newton step) and Ruiz equilibration (a rescaling of the rows
@@ -101,6 +105,7 @@ def solve_max_depth_cone(
     outlier_price: float = np.inf,
     lengths: np.ndarray | None = None,
     smoothed_starts: bool = False,
+    length_scale: LengthScale = "edges",
 ) -> ConeSolution:
     """Solve the maximum-depth cone program on a (small) set of points.
 
@@ -136,6 +141,13 @@ def solve_max_depth_cone(
         Also run the consistency rounds from the plain solution smoothed in each image
         (:mod:`~moju_core.priors.smoothed_starts`), and keep the rounds' result of lowest
         cost; the rounds then cost three times as much.
+    length_scale : {"edges", "pairs"}, default "edges"
+        How the unknown lengths are scaled: ``"edges"``, mean 1 over the edges
+        (``sum_e l_e = L``); ``"pairs"``, mean 1 over the (image, edge) pairs, each length
+        counted once per image that sees its edge whole (``sum_e n_e l_e = sum_e n_e``). With
+        every edge seen in every image the two are the same program. With missing data the
+        edge scale lets the maximisation lengthen the edges seen in many images, where a
+        longer bound raises many depths, at the expense of those seen in few.
 
     Returns
     -------
@@ -147,7 +159,8 @@ def solve_max_depth_cone(
     start = time.perf_counter()
     pairs = _edge_image_pairs(rays, seen, edges)
     program = _assemble_program(
-        pairs, soft_bounds=bool(np.isfinite(outlier_price)), lengths=lengths
+        pairs, soft_bounds=bool(np.isfinite(outlier_price)), lengths=lengths,
+        length_scale=length_scale,
     )
     status, best = _solve_program(program, _first_round_cost(program))
     n_solves, shrink = 1, 0.0
@@ -290,10 +303,15 @@ class _ConeProgram:
 
 
 def _assemble_program(
-    pairs: _EdgeImagePairs, *, soft_bounds: bool, lengths: np.ndarray | None = None
+    pairs: _EdgeImagePairs,
+    *,
+    soft_bounds: bool,
+    lengths: np.ndarray | None = None,
+    length_scale: LengthScale = "edges",
 ) -> _ConeProgram:
-    """Build the shared rows: the length scale (or the fixed ``lengths`` (E,)),
-    nonnegativity and the cones of the pairs."""
+    """Build the shared rows: the length scale (``length_scale``, see
+    :func:`solve_max_depth_cone`; or the fixed ``lengths`` (E,)), nonnegativity and the cones
+    of the pairs."""
     n_var, n_len, n_cones = pairs.n_var, pairs.n_len, pairs.n_cones
     n_t = n_cones if soft_bounds else 0
     n_x = n_var + n_len + n_cones + n_t
@@ -308,14 +326,25 @@ def _assemble_program(
     # Clarabel wants each cone's 4 rows together: interleave the 4 blocks of C rows.
     order = (np.arange(4)[None, :] * n_cones + np.arange(n_cones)[:, None]).ravel()
     rows = np.zeros(n_len, dtype=np.int64) if lengths is None else np.arange(n_len)
+    weights = _length_weights(pairs, length_scale) if lengths is None else np.ones(n_len)
     scale_row = sp.csr_matrix(
-        (np.ones(n_len), (rows, n_var + np.arange(n_len))),
+        (weights, (rows, n_var + np.arange(n_len))),
         shape=(1 if lengths is None else n_len, n_x),
     )
-    rhs = np.array([float(n_len)]) if lengths is None else np.asarray(lengths)[pairs.used_edges]
+    rhs = np.array([weights.sum()]) if lengths is None else np.asarray(lengths)[pairs.used_edges]
     return _ConeProgram(
         pairs, n_t, n_x, scale_row, rhs, -sp.eye(n_x, format="csr"), -stacked[order]
     )
+
+
+def _length_weights(pairs: _EdgeImagePairs, length_scale: LengthScale) -> np.ndarray:
+    """Weight (L,) of each length in the scale row: 1 (``"edges"``), or the number of images
+    that see the edge whole (``"pairs"``)."""
+    if length_scale == "edges":
+        return np.ones(pairs.n_len)
+    if length_scale == "pairs":
+        return np.asarray(pairs.pick.sum(axis=0), dtype=np.float64).ravel()
+    raise ValueError(f"length_scale must be 'edges' or 'pairs', got {length_scale!r}")
 
 
 def _solve_program(

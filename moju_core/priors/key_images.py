@@ -21,6 +21,7 @@ points, ``k`` neighbours) plus ``O(F A k)`` for the rest.
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +58,7 @@ def solve_by_key_images(
     edges: np.ndarray,
     *,
     n_key: int = MAX_KEY_IMAGES,
-    **options: float,
+    **options: Any,
 ) -> ConeSolution:
     """The maximum-depth program of all images, by key images and fixed lengths.
 

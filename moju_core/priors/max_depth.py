@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from moju_core.priors.cone_program import LengthScale
 from moju_core.priors.cut_off_groups import hold_cut_off_groups
 from moju_core.priors.dense_depth import homogeneous, interpolate_depths, refine_depths
 from moju_core.priors.key_images import MAX_KEY_IMAGES, solve_by_key_images
@@ -195,6 +196,7 @@ def max_depth_shapes(
     refine_iter: int = 0,
     n_key_images: int = MAX_KEY_IMAGES,
     smoothed_starts: bool = False,
+    length_scale: LengthScale = "edges",
 ) -> SurfaceFit:
     """Per-image 3D shapes from perspective tracks by the maximum-depth heuristic.
 
@@ -228,6 +230,9 @@ def max_depth_shapes(
     smoothed_starts : bool, default False
         Also start the consistency rounds from the plain program's depths smoothed per image
         and keep the cheapest result (:mod:`~moju_core.priors.smoothed_starts`).
+    length_scale : {"edges", "pairs"}, default "edges"
+        How the cone program scales its unknown lengths: mean 1 over the edges, or over the
+        (image, edge) pairs (see :func:`~moju_core.priors.cone_program.solve_max_depth_cone`).
 
     Returns
     -------
@@ -254,6 +259,7 @@ def max_depth_shapes(
     cone = solve_by_key_images(
         rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity,
         outlier_price=outlier_price, n_key=n_key_images, smoothed_starts=smoothed_starts,
+        length_scale=length_scale,
     )
     cone_depths = hold_cut_off_groups(
         rays[:, anchors], seen[:, anchors], anchor_edges, cone.depths, cone.lengths, cone.shrink

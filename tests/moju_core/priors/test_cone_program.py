@@ -54,3 +54,42 @@ def test_smoothed_starts_keep_the_cheapest_rounds(small_program, monkeypatch):
     np.testing.assert_array_equal(runs[0][1], own.depths)  # the own start is today's solve
     cheapest = min(runs, key=lambda run: run[0])[1]
     np.testing.assert_array_equal(chosen.depths, cheapest)
+
+
+def test_pair_scale_is_the_edge_scale_when_every_image_sees_every_edge(small_program):
+    edges_scale = solve_max_depth_cone(*small_program)
+    pairs_scale = solve_max_depth_cone(*small_program, length_scale="pairs")
+    assert pairs_scale.status == "Solved"
+    np.testing.assert_allclose(pairs_scale.depths, edges_scale.depths, rtol=1e-5)
+    np.testing.assert_allclose(pairs_scale.lengths, edges_scale.lengths, rtol=1e-5)
+
+
+def _half_seen_sheet():
+    """A sheet whose right half is seen in 2 of 8 images only."""
+    rays, truth = cylinder_sheet(n_points=60, n_frames=8, seed=5)
+    seen = np.ones(rays.shape[:2], bool)
+    seen[2:, truth[0, :, 0] > np.median(truth[0, :, 0])] = False
+    return rays, seen, truth
+
+
+def test_pair_scale_means_one_over_the_pairs_and_keeps_rarely_seen_lengths():
+    rays, seen, truth = _half_seen_sheet()
+    edges = neighbour_edges(rays, seen, k=6)
+    counts = (seen[:, edges[:, 0]] & seen[:, edges[:, 1]]).sum(axis=0)
+    true_lengths = np.linalg.norm(truth[0, edges[:, 0]] - truth[0, edges[:, 1]], axis=1)
+    bias = {}
+    for scale in ("edges", "pairs"):
+        solution = solve_max_depth_cone(rays, seen, edges, length_scale=scale)
+        used = np.isfinite(solution.lengths)
+        weights = counts[used] if scale == "pairs" else np.ones(used.sum())
+        assert np.average(solution.lengths[used], weights=weights) == pytest.approx(1.0)
+        ratio = solution.lengths[used] / true_lengths[used]
+        rare = counts[used] <= 2
+        bias[scale] = abs(np.log(np.median(ratio[~rare]) / np.median(ratio[rare])))
+    # The edge scale trades the rarely seen edges' length for the often seen ones'.
+    assert bias["pairs"] < 0.5 * bias["edges"]
+
+
+def test_an_unknown_length_scale_is_refused(small_program):
+    with pytest.raises(ValueError, match="length_scale"):
+        solve_max_depth_cone(*small_program, length_scale="points")
