@@ -32,6 +32,8 @@ every seed. Results: ``benchmarks/results/footage/footage[_quick].json`` and ``.
         --no-ortho --tag _drop2px  # oracle: without the tracks that err by > 2 px
     PYTHONPATH=. nice python benchmarks/footage.py --no-ortho --smoothed-starts \\
         --tag _smoothed_starts  # ablation: the prior's smoothed starts, side by side
+    PYTHONPATH=. nice python benchmarks/footage.py --no-ortho --pair-lengths \\
+        --tag _pair_lengths  # ablation: lengths scaled over the (image, edge) pairs
 """
 
 from __future__ import annotations
@@ -59,6 +61,20 @@ from moju_core.footage.tracking import Tracks, track_frames
 from moju_core.metrics import align, center_frames
 
 OUT = RESULTS / "footage"
+#: The surface prior's options measured side by side with its defaults: command-line flag ->
+#: (row prefix, ``max_depth_shapes`` options, title of the table).
+PRIOR_ABLATIONS: dict[str, tuple[str, dict[str, Any], str]] = {
+    "smoothed_starts": (
+        "starts",
+        {"smoothed_starts": True},
+        "The prior's smoothed starts (ablation)",
+    ),
+    "pair_lengths": (
+        "pairs",
+        {"length_scale": "pairs"},
+        "Lengths scaled over the (image, edge) pairs (ablation)",
+    ),
+}
 #: Tolerances of the targets: tracked <= RATIO x perfect + SLACK; out-of-plane >= OOP;
 #: tracked <= RIGID_FRACTION x rigid.
 RATIO, SLACK, OOP, RIGID_FRACTION = 1.15, 0.005, 0.8, 0.5
@@ -287,10 +303,11 @@ def run_scene(kind: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
         solves.update({"ortho tracks": (kept, None), "ortho perfect": (perfect, None)})
     for label, (source, intrinsics) in solves.items():
         row[label] = solve(source, intrinsics, truth)
-    if args.smoothed_starts:  # side by side with the default solves, for the time ratio
-        for label in ("tracks", "perfect"):
-            source, intrinsics = solves[label]
-            row[f"starts {label}"] = solve(source, intrinsics, truth, smoothed_starts=True)
+    for flag, (prefix, options, _) in PRIOR_ABLATIONS.items():
+        if getattr(args, flag):  # side by side with the default solves, for the time ratio
+            for label in ("tracks", "perfect"):
+                source, intrinsics = solves[label]
+                row[f"{prefix} {label}"] = solve(source, intrinsics, truth, **options)
     return judge(row)
 
 
@@ -422,8 +439,9 @@ def markdown(splits: dict[str, list[dict[str, Any]]]) -> list[str]:
         ],
         diag,
     )
-    if any("starts tracks" in r for rows in splits.values() for r in rows):
-        body += ["", *smoothed_starts_table(splits)]
+    for prefix, _, title in PRIOR_ABLATIONS.values():
+        if any(f"{prefix} tracks" in r for rows in splits.values() for r in rows):
+            body += ["", *prior_ablation_table(splits, prefix, title)]
     body += ["", "## Means per split", ""]
     for split, rows in splits.items():
         body.append(
@@ -452,6 +470,11 @@ def main() -> None:
         "--smoothed-starts",
         action="store_true",
         help="ablation: also solve with the prior's smoothed starts (max_depth_shapes option)",
+    )
+    parser.add_argument(
+        "--pair-lengths",
+        action="store_true",
+        help="ablation: also solve with the lengths scaled over the (image, edge) pairs",
     )
     parser.add_argument(
         "--tracks-only", action="store_true", help="render and track only: the pixel errors"
@@ -488,25 +511,27 @@ def main() -> None:
             write_results(name, meta, settings, splits)  # after every scene: long runs
 
 
-def smoothed_starts_table(splits: dict[str, list[dict[str, Any]]]) -> list[str]:
-    """``--smoothed-starts``: the default solves against those with the prior's smoothed
-    starts, every entry and the visible ones, with the time ratio of each pair."""
+def prior_ablation_table(
+    splits: dict[str, list[dict[str, Any]]], prefix: str, title: str
+) -> list[str]:
+    """An ablation of :data:`PRIOR_ABLATIONS` (rows ``"{prefix} tracks"`` and ``"{prefix}
+    perfect"``) against the default solves: every entry and the visible ones, the out-of-plane
+    ratio and the time ratio of each pair."""
     header = ["split", "kind", "seed", "tracks"]
-    header += ["e3D default", "e3D starts", "e3D vis default", "e3D vis starts"]
-    header += ["oop default", "oop starts", "time ratio"]
+    header += ["e3D default", f"e3D {prefix}", "e3D vis default", f"e3D vis {prefix}"]
+    header += ["oop default", f"oop {prefix}", "time ratio"]
     lines = []
     for split, rows in splits.items():
         for r in rows:
             for label in ("tracks", "perfect"):
-                a, b = r[label], r[f"starts {label}"]
+                a, b = r[label], r[f"{prefix} {label}"]
                 lines.append([
                     split, r["kind"], r["seed"], label, _fmt(a["e3d"]), _fmt(b["e3d"]),
                     _fmt(a["e3d_visible"]), _fmt(b["e3d_visible"]),
                     _fmt(a["out_of_plane"], 2), _fmt(b["out_of_plane"], 2),
                     _fmt(b["seconds"] / a["seconds"], 2),
                 ])  # fmt: skip
-    return ["## The prior's smoothed starts (ablation)", "", *table(header, lines)]
-
+    return [f"## {title}", "", *table(header, lines)]
 
 def write_tracks_only(
     name: str, meta: dict[str, Any], settings: dict[str, Any], splits: dict[str, list[dict]]
