@@ -30,6 +30,13 @@ through its 8 nearest anchors, the interpolation's local fit).
         --smoothed-start --tag _smoothed_start
     PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds --held-out 21 22 30 \\
         --smoothed-start --tag _smoothed_start_held_out_a  # and 31 32, _held_out_b
+    PYTHONPATH=.:benchmarks nice python benchmarks/dense_stage.py --seeds 0 1 2 \\
+        --held-out 11 20 --lengths --tag _lengths
+
+``--lengths`` measures the edge lengths' part in the anchors' error: the joint program with
+its lengths scaled over the edges (the default) and over the (image, edge) pairs, how far
+each puts the lengths of rarely and often seen edges from the truth's, and single images
+solved with the truth's lengths (an oracle).
 """
 
 from __future__ import annotations
@@ -154,6 +161,48 @@ def rounds_from_starts(rays, seen, edges, truth, make_starts) -> dict[str, float
     return out
 
 
+def _anchor_e3d(rays, seen, depths, truth) -> float:
+    placed = seen & np.isfinite(depths)  # the program leaves unbounded entries NaN
+    return visible_e3d(np.nan_to_num(_scaled_shapes(rays, placed, depths)[1]), truth, placed)
+
+
+def length_scores(rays, seen, edges, truth) -> dict[str, float]:
+    """The lengths' part in the anchors' error: the joint program with each length scale
+    (anchors' e3D; each length over the truth's, the truth's median over the images scaled to
+    the same mean, as the mean ratio of the edges seen whole in fewer than 10 images and in
+    20 or more), and every third image solved alone with the truth's lengths (an oracle) and
+    with the program's."""
+    both = seen[:, edges[:, 0]] & seen[:, edges[:, 1]]
+    counts = both.sum(axis=0)
+    true_lengths = np.median(
+        np.linalg.norm(truth[:, edges[:, 0]] - truth[:, edges[:, 1]], axis=2), axis=0
+    )
+    row: dict[str, float] = {}
+    for scale in ("edges", "pairs"):
+        joint = cone_program.solve_max_depth_cone(
+            rays, seen, edges, rigidity=RIGIDITY, length_scale=scale
+        )
+        used = np.isfinite(joint.lengths)
+        ratio = joint.lengths / (
+            true_lengths * np.mean(joint.lengths[used]) / np.mean(true_lengths[used])
+        )
+        row[f"{scale}: e3D"] = _anchor_e3d(rays, seen, joint.depths, truth)
+        row[f"{scale}: length ratio, < 10 images"] = float(np.mean(ratio[used & (counts < 10)]))
+        row[f"{scale}: length ratio, >= 20 images"] = float(np.mean(ratio[used & (counts >= 20)]))
+        if scale == "edges":
+            oracle = true_lengths * np.mean(joint.lengths[used]) / np.mean(true_lengths[used])
+            for name, lengths in (("program's", joint.lengths), ("truth's", oracle)):
+                alone = [
+                    _anchor_e3d(rays[f : f + 1], seen[f : f + 1], cone_program.solve_max_depth_cone(
+                        rays[f : f + 1], seen[f : f + 1], edges[used], rigidity=RIGIDITY,
+                        lengths=lengths[used]).depths, truth[f : f + 1])
+                    for f in range(0, len(rays), 3)
+                ]  # fmt: skip
+                row[f"images alone, {name} lengths: e3D"] = float(np.mean(alone))
+    row["edges seen in < 10 images"] = float(np.mean(counts[counts > 0] < 10))
+    return row
+
+
 def run_scene(kind: str, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
     """Rows (tracks, perfect) of one scene."""
     _, video = scene_video(kind, seed, args)
@@ -173,6 +222,8 @@ def run_scene(kind: str, seed: int, args: argparse.Namespace) -> list[dict[str, 
         if args.oracle_start or args.smoothed_start:
             starts = oracle_starts if args.oracle_start else smoothed_starts
             row.update(rounds_from_starts(r, s, edges, truth[:, anchors], starts))
+        elif args.lengths:
+            row.update(length_scores(r, s, edges, truth[:, anchors]))
         else:
             cone = solve_by_key_images(r, s, edges, rigidity=RIGIDITY, outlier_price=np.inf)
             depths = hold_cut_off_groups(r, s, edges, cone.depths, cone.lengths, cone.shrink)
@@ -193,6 +244,7 @@ def main() -> None:
     parser.add_argument("--held-out", type=int, nargs="*", default=[20, 21, 22, 30, 31, 32])
     parser.add_argument("--oracle-start", action="store_true")
     parser.add_argument("--smoothed-start", action="store_true")
+    parser.add_argument("--lengths", action="store_true", help="the lengths' part in the error")
     parser.add_argument("--tag", default="")
     args = parser.parse_args()
     args.frames, args.width, args.height, args.mesh = 30, 640, 480, 6000
