@@ -31,7 +31,7 @@ through its 8 nearest anchors, the interpolation's local fit).
     PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds --held-out 21 22 30 \\
         --smoothed-start --tag _smoothed_start_held_out_a  # and 31 32, _held_out_b
     PYTHONPATH=.:benchmarks nice python benchmarks/dense_stage.py --seeds 0 1 2 \\
-        --held-out 11 20 --lengths --tag _lengths
+        --held-out 11 --lengths --tag _lengths
 
 ``--lengths`` measures the edge lengths' part in the anchors' error: the joint program with
 its lengths scaled over the edges (the default) and over the (image, edge) pairs, how far
