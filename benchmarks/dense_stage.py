@@ -30,8 +30,10 @@ through its 8 nearest anchors, the interpolation's local fit).
         --smoothed-start --tag _smoothed_start
     PYTHONPATH=. nice python benchmarks/dense_stage.py --seeds --held-out 21 22 30 \\
         --smoothed-start --tag _smoothed_start_held_out_a  # and 31 32, _held_out_b
-    PYTHONPATH=.:benchmarks nice python benchmarks/dense_stage.py --seeds 0 1 2 \\
-        --held-out 11 --lengths --tag _lengths
+    PYTHONPATH=.:benchmarks nice python benchmarks/dense_stage.py --seeds 0 1 2 --held-out \\
+        --lengths --tag _lengths_design
+    PYTHONPATH=.:benchmarks nice python benchmarks/dense_stage.py --seeds \\
+        --held-out 11 20 21 22 --lengths --tag _lengths_held_out
 
 ``--lengths`` measures the edge lengths' part in the anchors' error: the joint program with
 its lengths scaled over the edges (the default) and over the (image, edge) pairs, how far
@@ -189,6 +191,9 @@ def length_scores(rays, seen, edges, truth) -> dict[str, float]:
         row[f"{scale}: e3D"] = _anchor_e3d(rays, seen, joint.depths, truth)
         row[f"{scale}: length ratio, < 10 images"] = float(np.mean(ratio[used & (counts < 10)]))
         row[f"{scale}: length ratio, >= 20 images"] = float(np.mean(ratio[used & (counts >= 20)]))
+        row[f"{scale}: isometry residual"] = cone_program.isometry_residual(
+            rays, edges, joint.depths, joint.lengths
+        )
         if scale == "edges":
             oracle = true_lengths * np.mean(joint.lengths[used]) / np.mean(true_lengths[used])
             for name, lengths in (("program's", joint.lengths), ("truth's", oracle)):

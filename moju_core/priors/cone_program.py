@@ -44,10 +44,16 @@ import scipy.sparse as sp
 from moju_core.priors.dense_depth import homogeneous
 from moju_core.priors.smoothed_starts import smoothed_start_depths
 
-__all__ = ["CLARABEL_SETTINGS", "ConeSolution", "LengthScale", "solve_max_depth_cone"]
+__all__ = [
+    "CLARABEL_SETTINGS",
+    "ConeSolution",
+    "LengthScale",
+    "isometry_residual",
+    "solve_max_depth_cone",
+]
 
 #: How the unknown edge lengths are scaled (see :func:`solve_max_depth_cone`).
-LengthScale = Literal["edges", "pairs"]
+LengthScale = Literal["edges", "pairs", "auto"]
 
 #: Clarabel settings changed from its defaults, for every solve. Iterative refinement (up to
 #: 10 extra back-substitutions per Newton step) and Ruiz equilibration (a rescaling of the rows
@@ -141,13 +147,15 @@ def solve_max_depth_cone(
         Also run the consistency rounds from the plain solution smoothed in each image
         (:mod:`~moju_core.priors.smoothed_starts`), and keep the rounds' result of lowest
         cost; the rounds then cost three times as much.
-    length_scale : {"edges", "pairs"}, default "edges"
+    length_scale : {"edges", "pairs", "auto"}, default "edges"
         How the unknown lengths are scaled: ``"edges"``, mean 1 over the edges
         (``sum_e l_e = L``); ``"pairs"``, mean 1 over the (image, edge) pairs, each length
         counted once per image that sees its edge whole (``sum_e n_e l_e = sum_e n_e``). With
         every edge seen in every image the two are the same program. With missing data the
         edge scale lets the maximisation lengthen the edges seen in many images, where a
-        longer bound raises many depths, at the expense of those seen in few.
+        longer bound raises many depths, at the expense of those seen in few. ``"auto"``
+        solves both and keeps the solution closer to an isometry
+        (:func:`isometry_residual`); it solves once where the two programs are the same.
 
     Returns
     -------
@@ -158,6 +166,36 @@ def solve_max_depth_cone(
     """
     start = time.perf_counter()
     pairs = _edge_image_pairs(rays, seen, edges)
+    settings = dict(
+        rigidity=rigidity, n_rounds=n_rounds, tol=tol, outlier_price=outlier_price,
+        lengths=lengths, smoothed_starts=smoothed_starts,
+    )  # fmt: skip
+    scales: list[LengthScale] = [length_scale] if length_scale != "auto" else ["edges"]
+    if length_scale == "auto" and lengths is None and _scales_differ(pairs):
+        scales.append("pairs")
+    solutions = [_solve_scaled(rays, pairs, scale, **settings) for scale in scales]
+    residuals = [isometry_residual(rays, edges, s.depths, s.lengths) for s in solutions]
+    kept = solutions[int(np.argmin(residuals))]
+    return ConeSolution(
+        kept.depths, kept.lengths, kept.status, time.perf_counter() - start, kept.n_cones,
+        sum(s.n_solves for s in solutions), kept.shrink,
+    )  # fmt: skip
+
+
+def _solve_scaled(
+    rays: np.ndarray,
+    pairs: _EdgeImagePairs,
+    length_scale: LengthScale,
+    *,
+    rigidity: float,
+    n_rounds: int,
+    tol: float,
+    outlier_price: float,
+    lengths: np.ndarray | None,
+    smoothed_starts: bool,
+) -> ConeSolution:
+    """:func:`solve_max_depth_cone` with one length scale (``"edges"`` or ``"pairs"``)."""
+    start = time.perf_counter()
     program = _assemble_program(
         pairs, soft_bounds=bool(np.isfinite(outlier_price)), lengths=lengths,
         length_scale=length_scale,
@@ -177,6 +215,22 @@ def solve_max_depth_cone(
     return ConeSolution(
         depths, lengths, status, time.perf_counter() - start, pairs.n_cones, n_solves, shrink
     )
+
+
+def isometry_residual(
+    rays: np.ndarray, edges: np.ndarray, depths: np.ndarray, lengths: np.ndarray
+) -> float:
+    """How far shapes are from keeping their edges' lengths: the mean of
+    ``|1 - ||X_fi - X_fj|| / l_e|`` over the (image, edge) pairs with both depths known
+    (dimensionless; inf if there is none).
+
+    ``rays`` (F, P, 2), ``edges`` (E, 2) int, ``depths`` (F, P) NaN where unknown and
+    ``lengths`` (E,) NaN where unused, as :class:`ConeSolution` has them. O(F E).
+    """
+    points = depths[..., None] * homogeneous(rays)
+    spans = np.linalg.norm(points[:, edges[:, 0]] - points[:, edges[:, 1]], axis=2)
+    ratios = (spans / lengths[None])[np.isfinite(spans) & np.isfinite(lengths)[None]]
+    return float(np.mean(np.abs(1.0 - ratios))) if ratios.size else float("inf")
 
 
 @dataclass(frozen=True)
@@ -337,6 +391,13 @@ def _assemble_program(
     )
 
 
+def _scales_differ(pairs: _EdgeImagePairs) -> bool:
+    """Whether the two length scales give different programs: only where the edges are not
+    all seen whole in the same number of images."""
+    counts = _length_weights(pairs, "pairs")
+    return bool(counts.size) and bool(np.ptp(counts) > 0)
+
+
 def _length_weights(pairs: _EdgeImagePairs, length_scale: LengthScale) -> np.ndarray:
     """Weight (L,) of each length in the scale row: 1 (``"edges"``), or the number of images
     that see the edge whole (``"pairs"``)."""
@@ -344,7 +405,7 @@ def _length_weights(pairs: _EdgeImagePairs, length_scale: LengthScale) -> np.nda
         return np.ones(pairs.n_len)
     if length_scale == "pairs":
         return np.asarray(pairs.pick.sum(axis=0), dtype=np.float64).ravel()
-    raise ValueError(f"length_scale must be 'edges' or 'pairs', got {length_scale!r}")
+    raise ValueError(f"length_scale must be 'edges', 'pairs' or 'auto', got {length_scale!r}")
 
 
 def _solve_program(

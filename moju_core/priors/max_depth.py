@@ -230,9 +230,10 @@ def max_depth_shapes(
     smoothed_starts : bool, default False
         Also start the consistency rounds from the plain program's depths smoothed per image
         and keep the cheapest result (:mod:`~moju_core.priors.smoothed_starts`).
-    length_scale : {"edges", "pairs"}, default "edges"
-        How the cone program scales its unknown lengths: mean 1 over the edges, or over the
-        (image, edge) pairs (see :func:`~moju_core.priors.cone_program.solve_max_depth_cone`).
+    length_scale : {"edges", "pairs", "auto"}, default "edges"
+        How the cone program scales its unknown lengths: mean 1 over the edges, over the
+        (image, edge) pairs, or both solved and the one closer to an isometry kept (see
+        :func:`~moju_core.priors.cone_program.solve_max_depth_cone`).
 
     Returns
     -------

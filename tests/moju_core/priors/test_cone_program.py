@@ -93,3 +93,47 @@ def test_pair_scale_means_one_over_the_pairs_and_keeps_rarely_seen_lengths():
 def test_an_unknown_length_scale_is_refused(small_program):
     with pytest.raises(ValueError, match="length_scale"):
         solve_max_depth_cone(*small_program, length_scale="points")
+
+
+def test_auto_scale_keeps_the_solution_closer_to_an_isometry():
+    rays, seen, _ = _half_seen_sheet()
+    edges = neighbour_edges(rays, seen, k=6)
+    solved = {
+        scale: solve_max_depth_cone(rays, seen, edges, length_scale=scale)
+        for scale in ("edges", "pairs")
+    }
+    residual = {
+        s: cone_program.isometry_residual(rays, edges, solution.depths, solution.lengths)
+        for s, solution in solved.items()
+    }
+    assert residual["edges"] != residual["pairs"]
+    auto = solve_max_depth_cone(rays, seen, edges, length_scale="auto")
+    closer = solved[min(residual, key=residual.get)]
+    np.testing.assert_array_equal(auto.depths, closer.depths)
+    assert auto.n_solves == solved["edges"].n_solves + solved["pairs"].n_solves
+
+
+def test_auto_scale_solves_once_when_every_image_sees_every_edge(small_program):
+    auto = solve_max_depth_cone(*small_program, length_scale="auto")
+    edges_scale = solve_max_depth_cone(*small_program)
+    np.testing.assert_array_equal(auto.depths, edges_scale.depths)
+    assert auto.n_solves == edges_scale.n_solves
+
+
+def test_isometry_residual_is_zero_for_shapes_that_keep_their_lengths():
+    _, bent = cylinder_sheet(n_points=40, n_frames=1, seed=2)
+    shape = bent[0] - bent[0].mean(axis=0)
+    turns = [np.eye(3), _turn_about_y(0.2), _turn_about_y(-0.3)]
+    truth = np.stack([shape @ turn.T + [0.0, 0.1 * f, 3.0] for f, turn in enumerate(turns)])
+    rays = truth[..., :2] / truth[..., 2:]
+    edges = neighbour_edges(rays, k=6)
+    depths = truth[..., 2]
+    lengths = np.linalg.norm(shape[edges[:, 0]] - shape[edges[:, 1]], axis=1)
+    assert cone_program.isometry_residual(rays, edges, depths, lengths) < 1e-9
+    assert cone_program.isometry_residual(rays, edges, 1.1 * depths, lengths) == pytest.approx(0.1)
+
+
+def _turn_about_y(angle: float) -> np.ndarray:
+    """Rotation (3, 3) by ``angle`` radians about the y axis."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
