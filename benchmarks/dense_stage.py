@@ -44,6 +44,7 @@ solved with the truth's lengths (an oracle).
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
 from dataclasses import replace
 from typing import Any
 
@@ -150,10 +151,8 @@ def rounds_from_starts(rays, seen, edges, truth, make_starts) -> dict[str, float
         label = "own start"
         while True:  # the own start's solve makes the others (from its first round)
             sol = cone_program.solve_max_depth_cone(rays, seen, edges, rigidity=RIGIDITY)
-            placed = seen & np.isfinite(sol.depths)
-            shapes = _scaled_shapes(rays, placed, sol.depths)[1]
             out[f"{label} cost"] = costs["cost"]
-            out[f"{label} e3d"] = float(visible_e3d(np.nan_to_num(shapes), truth, placed))
+            out[f"{label} e3d"] = _anchor_e3d(rays, seen, sol.depths, truth)
             left = [name for name in start["starts"] if f"{name} cost" not in out]
             if not left:
                 break
@@ -164,6 +163,7 @@ def rounds_from_starts(rays, seen, edges, truth, make_starts) -> dict[str, float
 
 
 def _anchor_e3d(rays, seen, depths, truth) -> float:
+    """Mean per-image e3D (F, A) over the entries the program placed."""
     placed = seen & np.isfinite(depths)  # the program leaves unbounded entries NaN
     return visible_e3d(np.nan_to_num(_scaled_shapes(rays, placed, depths)[1]), truth, placed)
 
@@ -208,18 +208,28 @@ def length_scores(rays, seen, edges, truth) -> dict[str, float]:
     return row
 
 
-def run_scene(kind: str, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
-    """Rows (tracks, perfect) of one scene."""
+def scene_rays(
+    kind: str, seed: int, args: argparse.Namespace
+) -> Iterator[tuple[str, np.ndarray, np.ndarray, np.ndarray, float]]:
+    """One scene rendered and tracked as in ``benchmarks/footage.py``: for the tracks, then
+    perfect tracks of the same points, the label, the rays (F, P, 2; NaN where not seen), the
+    visibility (F, P), the points' true paths (F, P, 3) and the focal length in pixels."""
     _, video = scene_video(kind, seed, args)
     tracks = replace(track_frames(list(video.frames), mask=video.mask), intrinsics=video.intrinsics)
     kept, perfect, index = perfect_tracks(video, tracks)
     truth = video.paths_3d[:, index]
-    rows = []
     for label, source in (("tracks", kept), ("perfect", perfect)):
         n_frames, n_points = source.visibility.shape
         rays = video.intrinsics.normalise(source.W).reshape(n_frames, 2, n_points)
         rays = np.where(source.visibility[:, :, None], rays.transpose(0, 2, 1), np.nan)
-        seen = source.visibility
+        yield label, rays, source.visibility, truth, float(video.intrinsics.K[0, 0])
+
+
+def run_scene(kind: str, seed: int, args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Rows (tracks, perfect) of one scene."""
+    rows = []
+    for label, rays, seen, truth, _ in scene_rays(kind, seed, args):
+        n_points = seen.shape[1]
         anchors = spread_anchors(rays, seen, n_anchor=N_ANCHOR, seed=0)
         r, s = rays[:, anchors], seen[:, anchors]
         edges = neighbour_edges(r, s, k=K)
@@ -232,9 +242,7 @@ def run_scene(kind: str, seed: int, args: argparse.Namespace) -> list[dict[str, 
         else:
             cone = solve_by_key_images(r, s, edges, rigidity=RIGIDITY, outlier_price=np.inf)
             depths = hold_cut_off_groups(r, s, edges, cone.depths, cone.lengths, cone.shrink)
-            placed = s & np.isfinite(depths)  # the program leaves unbounded entries NaN
-            anchor_shapes = _scaled_shapes(r, placed, depths)[1]
-            row["anchors"] = visible_e3d(np.nan_to_num(anchor_shapes), truth[:, anchors], placed)
+            row["anchors"] = _anchor_e3d(r, s, depths, truth[:, anchors])
             for name, dense in dense_variants(rays, seen, anchors, depths).items():
                 shapes = _scaled_shapes(rays, seen, dense)[1]
                 row[name] = visible_e3d(np.nan_to_num(shapes), truth, seen)

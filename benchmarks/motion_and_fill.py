@@ -28,23 +28,20 @@ Neither route is used by the solver; the notebook says why.
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from dense_stage import N_ANCHOR, RIGIDITY, rigid_depths
+from dense_stage import N_ANCHOR, RIGIDITY, rigid_depths, scene_rays
 from dense_stage import K as NEIGHBOURS
-from footage import scene_video, visible_e3d
+from footage import visible_e3d
 from harness import RESULTS, provenance, table, write_json, write_markdown
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-from tracking import perfect_tracks
 
 import moju_core.perspective as perspective
 from moju_core.datasets.totem import scaled_e3d
-from moju_core.footage.tracking import track_frames
 from moju_core.priors.cut_off_groups import hold_cut_off_groups
 from moju_core.priors.dense_depth import homogeneous
 from moju_core.priors.key_images import solve_by_key_images
@@ -112,11 +109,16 @@ def _jacobian_pattern(seen: np.ndarray) -> sp.csr_matrix:
     return sp.csr_matrix((np.ones(len(rows_)), (rows_, cols_)), shape=shape)
 
 
-def rigid_bundle(rays, seen, depths, ray_sd, depth_sd) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-frame points (F, A, 3) of the rigid bundle adjustment and of its start."""
-    n_frames, n_points, _ = rays.shape
+def posed_start(rays: np.ndarray, seen: np.ndarray, depths: np.ndarray) -> np.ndarray:
+    """The bundle adjustment's start: :func:`posed_mean` of the shapes of ``depths`` (F, A),
+    packed as the unknowns (6 F + 3 A,)."""
     rotvecs, shifts, mean = posed_mean(np.nan_to_num(depths)[..., None] * homogeneous(rays), seen)
-    x0 = np.concatenate([np.hstack([rotvecs, shifts]).ravel(), mean.ravel()])
+    return np.concatenate([np.hstack([rotvecs, shifts]).ravel(), mean.ravel()])
+
+
+def rigid_bundle(rays, seen, depths, x0, ray_sd, depth_sd) -> np.ndarray:
+    """Camera-frame points (F, A, 3) of the rigid bundle adjustment started from ``x0``."""
+    n_frames, n_points, _ = rays.shape
     frames, points = np.nonzero(seen)
     observed, prior = rays[frames, points], depths[frames, points]
 
@@ -128,11 +130,12 @@ def rigid_bundle(rays, seen, depths, ray_sd, depth_sd) -> tuple[np.ndarray, np.n
     fit = least_squares(
         residuals, x0, jac_sparsity=_jacobian_pattern(seen), x_scale="jac", max_nfev=60
     )
-    return _camera_points(fit.x, n_frames, n_points), _camera_points(x0, n_frames, n_points)
+    return _camera_points(fit.x, n_frames, n_points)
 
 
-def bundle_row(rays, seen, truth, source: str) -> dict[str, Any]:
-    """Anchors' e3D of the prior, its rigid pose, the bundle adjustments and the oracle."""
+def bundle_row(rays, seen, truth, ray_sd: float) -> dict[str, Any]:
+    """Anchors' e3D of the prior, its rigid pose, the bundle adjustments and the oracle;
+    ``ray_sd`` the tracks' standard deviation on the rays (pixels over the focal length)."""
     anchors = spread_anchors(rays, seen, n_anchor=N_ANCHOR, seed=0)
     r, s, true = rays[:, anchors], seen[:, anchors], truth[:, anchors]
     edges = neighbour_edges(r, s, k=NEIGHBOURS)
@@ -147,10 +150,10 @@ def bundle_row(rays, seen, truth, source: str) -> dict[str, Any]:
             rigid_depths(r, true)[..., None] * points, true, placed
         ),
     }
-    ray_sd = TRACK_PX[source] / 768.0  # the scenes' focal length, 1.2 x 640 px
+    x0 = posed_start(r, placed, depths)
+    row["posed"] = visible_e3d(_camera_points(x0, *r.shape[:2]), true, placed)
     for depth_sd in DEPTH_SDS:
-        bundle, start = rigid_bundle(r, placed, depths, ray_sd, depth_sd)
-        row["posed"] = visible_e3d(start, true, placed)
+        bundle = rigid_bundle(r, placed, depths, x0, ray_sd, depth_sd)
         row[f"bundle sd {depth_sd:g}"] = visible_e3d(bundle, true, placed)
     return row
 
@@ -179,7 +182,7 @@ def local_fill(shapes: np.ndarray, known: np.ndarray, k: int) -> np.ndarray:
     return filled
 
 
-def fill_row(rays, seen, truth, source: str) -> dict[str, Any]:
+def fill_row(rays, seen, truth) -> dict[str, Any]:
     """Every entry's e3D of the prior with each way of filling its hidden entries."""
     fit = max_depth_shapes(rays, seen, seed=0)
     placed = np.isfinite(fit.depths)
@@ -201,18 +204,12 @@ def fill_row(rays, seen, truth, source: str) -> dict[str, Any]:
 def run_scene(kind: str, seed: int, experiment: str) -> list[dict[str, Any]]:
     """Rows (tracks, perfect) of one scene."""
     args = argparse.Namespace(frames=30, width=640, height=480, mesh=6000)
-    _, video = scene_video(kind, seed, args)
-    tracks = replace(track_frames(list(video.frames), mask=video.mask), intrinsics=video.intrinsics)
-    kept, perfect, index = perfect_tracks(video, tracks)
-    truth = video.paths_3d[:, index]
     rows = []
-    for source, measured in (("tracks", kept), ("perfect", perfect)):
-        n_frames, n_points = measured.visibility.shape
-        rays = video.intrinsics.normalise(measured.W).reshape(n_frames, 2, n_points)
-        rays = np.where(measured.visibility[:, :, None], rays.transpose(0, 2, 1), np.nan)
-        scores = (bundle_row if experiment == "bundle" else fill_row)(
-            rays, measured.visibility, truth, source
-        )
+    for source, rays, seen, truth, focal in scene_rays(kind, seed, args):
+        if experiment == "bundle":
+            scores = bundle_row(rays, seen, truth, TRACK_PX[source] / focal)
+        else:
+            scores = fill_row(rays, seen, truth)
         row = {"kind": kind, "seed": seed, "source": source, **scores}
         print(row, flush=True)
         rows.append(row)

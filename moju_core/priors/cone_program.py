@@ -174,6 +174,8 @@ def solve_max_depth_cone(
     if length_scale == "auto" and lengths is None and _scales_differ(pairs):
         scales.append("pairs")
     solutions = [_solve_scaled(rays, pairs, scale, **settings) for scale in scales]
+    if len(solutions) == 1:
+        return solutions[0]
     residuals = [isometry_residual(rays, edges, s.depths, s.lengths) for s in solutions]
     kept = solutions[int(np.argmin(residuals))]
     return ConeSolution(
