@@ -34,8 +34,8 @@ every seed. Results: ``benchmarks/results/footage/footage[_quick].json`` and ``.
         --tag _smoothed_starts  # ablation: the prior's smoothed starts, side by side
     PYTHONPATH=. nice python benchmarks/footage.py --no-ortho --pair-lengths \\
         --tag _pair_lengths  # ablation: lengths scaled over the (image, edge) pairs
-    PYTHONPATH=. nice python benchmarks/footage.py --no-ortho --auto-lengths \\
-        --tag _auto_lengths  # ablation: both length scales, the closer to an isometry kept
+    PYTHONPATH=. nice python benchmarks/footage.py --no-ortho --edge-lengths \\
+        --tag _edge_lengths  # ablation: lengths scaled over the edges alone
 """
 
 from __future__ import annotations
@@ -76,10 +76,10 @@ PRIOR_ABLATIONS: dict[str, tuple[str, dict[str, Any], str]] = {
         {"length_scale": "pairs"},
         "Lengths scaled over the (image, edge) pairs (ablation)",
     ),
-    "auto_lengths": (
-        "auto",
-        {"length_scale": "auto"},
-        "Both length scales, the one closer to an isometry kept (ablation)",
+    "edge_lengths": (
+        "edges",
+        {"length_scale": "edges"},
+        "Lengths scaled over the edges alone, the program of MDH (ablation)",
     ),
 }
 #: Tolerances of the targets: tracked <= RATIO x perfect + SLACK; out-of-plane >= OOP;
@@ -484,9 +484,9 @@ def main() -> None:
         help="ablation: also solve with the lengths scaled over the (image, edge) pairs",
     )
     parser.add_argument(
-        "--auto-lengths",
+        "--edge-lengths",
         action="store_true",
-        help="ablation: also solve with both length scales, keeping the closer to an isometry",
+        help="ablation: also solve with the lengths scaled over the edges alone",
     )
     parser.add_argument(
         "--tracks-only", action="store_true", help="render and track only: the pixel errors"

@@ -111,7 +111,7 @@ def solve_max_depth_cone(
     outlier_price: float = np.inf,
     lengths: np.ndarray | None = None,
     smoothed_starts: bool = False,
-    length_scale: LengthScale = "edges",
+    length_scale: LengthScale = "auto",
 ) -> ConeSolution:
     """Solve the maximum-depth cone program on a (small) set of points.
 
@@ -147,7 +147,7 @@ def solve_max_depth_cone(
         Also run the consistency rounds from the plain solution smoothed in each image
         (:mod:`~moju_core.priors.smoothed_starts`), and keep the rounds' result of lowest
         cost; the rounds then cost three times as much.
-    length_scale : {"edges", "pairs", "auto"}, default "edges"
+    length_scale : {"edges", "pairs", "auto"}, default "auto"
         How the unknown lengths are scaled: ``"edges"``, mean 1 over the edges
         (``sum_e l_e = L``); ``"pairs"``, mean 1 over the (image, edge) pairs, each length
         counted once per image that sees its edge whole (``sum_e n_e l_e = sum_e n_e``). With

@@ -196,7 +196,7 @@ def max_depth_shapes(
     refine_iter: int = 0,
     n_key_images: int = MAX_KEY_IMAGES,
     smoothed_starts: bool = False,
-    length_scale: LengthScale = "edges",
+    length_scale: LengthScale = "auto",
 ) -> SurfaceFit:
     """Per-image 3D shapes from perspective tracks by the maximum-depth heuristic.
 
@@ -230,7 +230,7 @@ def max_depth_shapes(
     smoothed_starts : bool, default False
         Also start the consistency rounds from the plain program's depths smoothed per image
         and keep the cheapest result (:mod:`~moju_core.priors.smoothed_starts`).
-    length_scale : {"edges", "pairs", "auto"}, default "edges"
+    length_scale : {"edges", "pairs", "auto"}, default "auto"
         How the cone program scales its unknown lengths: mean 1 over the edges, over the
         (image, edge) pairs, or both solved and the one closer to an isometry kept (see
         :func:`~moju_core.priors.cone_program.solve_max_depth_cone`).

@@ -57,7 +57,7 @@ def test_smoothed_starts_keep_the_cheapest_rounds(small_program, monkeypatch):
 
 
 def test_pair_scale_is_the_edge_scale_when_every_image_sees_every_edge(small_program):
-    edges_scale = solve_max_depth_cone(*small_program)
+    edges_scale = solve_max_depth_cone(*small_program, length_scale="edges")
     pairs_scale = solve_max_depth_cone(*small_program, length_scale="pairs")
     assert pairs_scale.status == "Solved"
     np.testing.assert_allclose(pairs_scale.depths, edges_scale.depths, rtol=1e-5)
@@ -107,15 +107,15 @@ def test_auto_scale_keeps_the_solution_closer_to_an_isometry():
         for s, solution in solved.items()
     }
     assert residual["edges"] != residual["pairs"]
-    auto = solve_max_depth_cone(rays, seen, edges, length_scale="auto")
+    auto = solve_max_depth_cone(rays, seen, edges)  # the default
     closer = solved[min(residual, key=residual.get)]
     np.testing.assert_array_equal(auto.depths, closer.depths)
     assert auto.n_solves == solved["edges"].n_solves + solved["pairs"].n_solves
 
 
 def test_auto_scale_solves_once_when_every_image_sees_every_edge(small_program):
-    auto = solve_max_depth_cone(*small_program, length_scale="auto")
-    edges_scale = solve_max_depth_cone(*small_program)
+    auto = solve_max_depth_cone(*small_program)  # the default
+    edges_scale = solve_max_depth_cone(*small_program, length_scale="edges")
     np.testing.assert_array_equal(auto.depths, edges_scale.depths)
     assert auto.n_solves == edges_scale.n_solves
 
