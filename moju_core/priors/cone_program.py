@@ -35,7 +35,7 @@ decreases the objective). This is maximum rigidity's edge-length consistency (Ji
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -89,6 +89,9 @@ class ConeSolution:
     shrink : float
         Mean slack ``s_fe`` of the last round over the mean ``l_e`` (how much the edges shrink
         below their bound; 0 without consistency).
+    length_scale : {"edges", "pairs"}
+        The length scale of the solution kept: ``"auto"``'s choice (``"edges"`` where the two
+        programs are the same; meaningless where the lengths were given).
     """
 
     depths: np.ndarray
@@ -98,6 +101,7 @@ class ConeSolution:
     n_cones: int
     n_solves: int = 1
     shrink: float = 0.0
+    length_scale: LengthScale = "edges"
 
 
 def solve_max_depth_cone(
@@ -178,10 +182,9 @@ def solve_max_depth_cone(
         return solutions[0]
     residuals = [isometry_residual(rays, edges, s.depths, s.lengths) for s in solutions]
     kept = solutions[int(np.argmin(residuals))]
-    return ConeSolution(
-        kept.depths, kept.lengths, kept.status, time.perf_counter() - start, kept.n_cones,
-        sum(s.n_solves for s in solutions), kept.shrink,
-    )  # fmt: skip
+    return replace(
+        kept, seconds=time.perf_counter() - start, n_solves=sum(s.n_solves for s in solutions)
+    )
 
 
 def _solve_scaled(
@@ -215,8 +218,9 @@ def _solve_scaled(
         n_solves += n_rounds_run
     depths, lengths = _unpack(pairs, best)
     return ConeSolution(
-        depths, lengths, status, time.perf_counter() - start, pairs.n_cones, n_solves, shrink
-    )
+        depths, lengths, status, time.perf_counter() - start, pairs.n_cones, n_solves, shrink,
+        length_scale,
+    )  # fmt: skip
 
 
 def isometry_residual(

@@ -105,4 +105,5 @@ def _combined(
         n_cones=int(n_cones.sum()),
         n_solves=sum(s.n_solves for s in solves),
         shrink=float(shrink @ n_cones / max(n_cones.sum(), 1)),
+        length_scale=solves[0].length_scale,
     )

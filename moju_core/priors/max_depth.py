@@ -68,6 +68,9 @@ class SurfaceFit:
     shrink : float
         Mean slack of the consistency term over the mean edge bound: how far the anchors'
         edges fall short of their bounds on average (0 = every edge at its bound everywhere).
+    length_scale : {"edges", "pairs"}
+        The anchors' length scale, as chosen by ``length_scale="auto"`` (see
+        :class:`~moju_core.priors.cone_program.ConeSolution`).
     """
 
     depths: np.ndarray
@@ -79,6 +82,7 @@ class SurfaceFit:
     n_edges: int = 0
     n_solves: int = 1
     shrink: float = 0.0
+    length_scale: LengthScale = "edges"
 
 
 def max_depth_edges(
@@ -281,5 +285,5 @@ def max_depth_shapes(
     seconds["total"] = time.perf_counter() - t_start
     return SurfaceFit(
         depths, shapes, anchors, cone.status, seconds, violation, n_edges,
-        cone.n_solves, cone.shrink,
+        cone.n_solves, cone.shrink, cone.length_scale,
     )

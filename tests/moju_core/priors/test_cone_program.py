@@ -108,8 +108,9 @@ def test_auto_scale_keeps_the_solution_closer_to_an_isometry():
     }
     assert residual["edges"] != residual["pairs"]
     auto = solve_max_depth_cone(rays, seen, edges)  # the default
-    closer = solved[min(residual, key=residual.get)]
-    np.testing.assert_array_equal(auto.depths, closer.depths)
+    kept = min(residual, key=residual.get)
+    np.testing.assert_array_equal(auto.depths, solved[kept].depths)
+    assert auto.length_scale == kept
     assert auto.n_solves == solved["edges"].n_solves + solved["pairs"].n_solves
 
 

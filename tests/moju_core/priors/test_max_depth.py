@@ -30,6 +30,7 @@ def test_bent_sheet_recovered(sheet, fit):
     rays, truth = sheet
     assert fit.status == "Solved"
     assert 2 <= fit.n_solves <= 7 and fit.shrink >= 0
+    assert fit.length_scale == "edges"  # every point seen: the two scales are one program
     assert scaled_e3d(fit.shapes, truth) < 0.12
     assert out_of_plane_ratio(fit.shapes, truth) > 0.6
     flat = np.concatenate([rays, np.ones(rays.shape[:2] + (1,))], 2)
