@@ -122,7 +122,8 @@ def solve_max_depth_cone(
     Cost: ``C = (#seen edge-image pairs) ~ F P k / 2`` cones of size 4; an interior-point
     method takes ``O(C)`` per sparse factorisation times a few tens of iterations (about 0.5 s
     for F = 10, P = 90, k = 8; keep ``P`` to a few hundred), times ``1 + n_rounds`` with
-    the consistency term.
+    the consistency term, and twice that with ``length_scale="auto"`` where the two length
+    scales differ (missing data).
 
     Parameters
     ----------
