@@ -36,7 +36,7 @@ through its 8 nearest anchors, the interpolation's local fit).
         --held-out 11 20 21 22 --lengths --tag _lengths_held_out
 
 ``--lengths`` measures the edge lengths' part in the anchors' error: the joint program with
-its lengths scaled over the edges (the default) and over the (image, edge) pairs, how far
+its lengths scaled over the edges (the program of MDH) and over the (image, edge) pairs, how far
 each puts the lengths of rarely and often seen edges from the truth's, and single images
 solved with the truth's lengths (an oracle).
 """

@@ -473,21 +473,12 @@ def main() -> None:
     parser.add_argument("--mesh", type=int, default=6000, help="vertices of the sheet's mesh")
     parser.add_argument("--no-ortho", action="store_true", help="skip the orthographic solves")
     parser.add_argument("--tag", default="", help="suffix of the result files")
-    parser.add_argument(
-        "--smoothed-starts",
-        action="store_true",
-        help="ablation: also solve with the prior's smoothed starts (max_depth_shapes option)",
-    )
-    parser.add_argument(
-        "--pair-lengths",
-        action="store_true",
-        help="ablation: also solve with the lengths scaled over the (image, edge) pairs",
-    )
-    parser.add_argument(
-        "--edge-lengths",
-        action="store_true",
-        help="ablation: also solve with the lengths scaled over the edges alone",
-    )
+    for flag, (_, options, title) in PRIOR_ABLATIONS.items():
+        parser.add_argument(
+            "--" + flag.replace("_", "-"),
+            action="store_true",
+            help=f"{title}: also solve with max_depth_shapes options {options}",
+        )
     parser.add_argument(
         "--tracks-only", action="store_true", help="render and track only: the pixel errors"
     )

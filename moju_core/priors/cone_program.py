@@ -175,9 +175,7 @@ def solve_max_depth_cone(
         rigidity=rigidity, n_rounds=n_rounds, tol=tol, outlier_price=outlier_price,
         lengths=lengths, smoothed_starts=smoothed_starts,
     )  # fmt: skip
-    scales: list[LengthScale] = [length_scale] if length_scale != "auto" else ["edges"]
-    if length_scale == "auto" and lengths is None and _scales_differ(pairs):
-        scales.append("pairs")
+    scales = _candidate_scales(length_scale, pairs, fixed=lengths is not None)
     solutions = [_solve_scaled(rays, pairs, scale, **settings) for scale in scales]
     if len(solutions) == 1:
         return solutions[0]
@@ -398,11 +396,21 @@ def _assemble_program(
     )
 
 
-def _scales_differ(pairs: _EdgeImagePairs) -> bool:
-    """Whether the two length scales give different programs: only where the edges are not
-    all seen whole in the same number of images."""
+def _candidate_scales(
+    length_scale: LengthScale, pairs: _EdgeImagePairs, *, fixed: bool
+) -> list[LengthScale]:
+    """The length scales to solve: the one asked for, or for ``"auto"`` both where they give
+    different programs (lengths not ``fixed`` and the edges not all seen whole in the same
+    number of images), else the edge scale alone."""
+    if length_scale not in ("edges", "pairs", "auto"):
+        raise ValueError(
+            f"length_scale must be 'edges', 'pairs' or 'auto', got {length_scale!r}"
+        )
+    if length_scale != "auto":
+        return [length_scale]
     counts = _length_weights(pairs, "pairs")
-    return bool(counts.size) and bool(np.ptp(counts) > 0)
+    differ = not fixed and counts.size > 0 and np.ptp(counts) > 0
+    return ["edges", "pairs"] if differ else ["edges"]
 
 
 def _length_weights(pairs: _EdgeImagePairs, length_scale: LengthScale) -> np.ndarray:
@@ -410,9 +418,7 @@ def _length_weights(pairs: _EdgeImagePairs, length_scale: LengthScale) -> np.nda
     that see the edge whole (``"pairs"``)."""
     if length_scale == "edges":
         return np.ones(pairs.n_len)
-    if length_scale == "pairs":
-        return np.asarray(pairs.pick.sum(axis=0), dtype=np.float64).ravel()
-    raise ValueError(f"length_scale must be 'edges', 'pairs' or 'auto', got {length_scale!r}")
+    return np.asarray(pairs.pick.sum(axis=0), dtype=np.float64).ravel()
 
 
 def _solve_program(
