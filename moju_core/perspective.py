@@ -96,10 +96,26 @@ def prior_shapes(
     fit = max_depth_shapes(rays, visibility, seed=seed)
     if not np.isfinite(fit.depths).any():
         raise MeasurementError(_unsolved_prior_message(fit.status, rays, intrinsics))
-    placed = np.isfinite(fit.depths)
+    depths = _place_empty_frames(fit.depths, visibility)
+    placed = np.isfinite(depths)
     points = homogeneous(rays)
-    shapes = _fill_hidden(fit.depths[:, :, None] * points, placed)
-    return _unplaced_on_rays(shapes, points, visibility & ~placed, fit.depths), fit
+    shapes = _fill_hidden(depths[:, :, None] * points, placed)
+    return _unplaced_on_rays(shapes, points, visibility & ~placed, depths), fit
+
+
+def _place_empty_frames(depths: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    """``depths`` (F, P) with the seen points of every image in which the prior placed none
+    (all its seen points cut off from one another, as when the object has almost left the
+    view) put at the median depth of the nearest image that has placed points (the earlier
+    one at equal distance): without a placed point an image has nothing to move its hidden
+    points by. Unchanged when every image has one; at least one image must. O(F P)."""
+    empty = ~np.isfinite(depths).any(axis=1) & visibility.any(axis=1)
+    if not empty.any():
+        return depths
+    has = np.flatnonzero(np.isfinite(depths).any(axis=1))
+    nearest = has[np.argmin(np.abs(np.arange(len(depths))[:, None] - has[None, :]), axis=1)]
+    median = np.nanmedian(depths[nearest], axis=1)
+    return np.where(empty[:, None] & visibility, median[:, None], depths)
 
 
 def _unplaced_on_rays(

@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
 import pytest
 
-from moju_core import SolverParams, reconstruct
+from moju_core import SolverParams, perspective, reconstruct
 from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.datasets.perspective_sheets import cylinder_sheet
 from moju_core.datasets.totem import out_of_plane_ratio, scaled_e3d
 from moju_core.errors import MeasurementError
-from moju_core.perspective import _fill_hidden, _unplaced_on_rays, uses_surface_prior
+from moju_core.perspective import (
+    _fill_hidden,
+    _place_empty_frames,
+    _unplaced_on_rays,
+    uses_surface_prior,
+)
 
 FOCAL = 800.0
 CAMERA = Intrinsics(np.array([[FOCAL, 0.0, 0.0], [0.0, FOCAL, 0.0], [0.0, 0.0, 1.0]]))
@@ -169,3 +175,39 @@ def test_a_seen_point_without_a_depth_goes_to_its_ray_from_where_other_frames_pu
     shapes[1, 0] = np.nan
     placed = _unplaced_on_rays(shapes, homogeneous, unplaced, depths)
     np.testing.assert_allclose(placed[1, 0], [0.0, 0.0, 4.0])
+
+
+def test_an_image_without_a_placed_point_takes_the_nearest_image_s_depth():
+    depths = np.array([[2.0, 4.0, np.nan], [np.nan] * 3, [np.nan] * 3, [5.0, np.nan, 7.0]])
+    visibility = np.array([[1, 1, 0], [1, 0, 1], [0, 1, 1], [1, 0, 1]], bool)
+    placed = _place_empty_frames(depths, visibility)
+    np.testing.assert_allclose(placed[1], [3.0, np.nan, 3.0])  # image 0's median, not 3's
+    np.testing.assert_allclose(placed[2], [np.nan, 6.0, 6.0])  # image 3's
+    assert np.array_equal(placed[[0, 3]], depths[[0, 3]], equal_nan=True)
+    every_image_placed = depths[[0, 3]]
+    assert _place_empty_frames(every_image_placed, visibility[[0, 3]]) is every_image_placed
+
+
+def test_an_image_where_the_prior_placed_nothing_still_gets_every_shape(sheet, monkeypatch):
+    """The object has almost left the last image: the few points it still sees are cut off
+    from one another and the cone program places none. Every entry of that image is still
+    given a shape (it was NaN, and the loop then failed), the seen ones on their rays."""
+    rays, _ = sheet
+    visibility = np.ones(rays.shape[:2], bool)
+    visibility[-1, 12:] = False
+    W = np.where(np.repeat(visibility, 2, axis=0), _pixels(rays), np.nan)
+    original = perspective.max_depth_shapes
+
+    def nothing_in_the_last_image(*args, **kwargs):
+        fit = original(*args, **kwargs)
+        depths = fit.depths.copy()
+        depths[-1] = np.nan
+        return dataclasses.replace(fit, depths=depths)
+
+    monkeypatch.setattr(perspective, "max_depth_shapes", nothing_in_the_last_image)
+    shapes, _ = perspective.prior_shapes(W, visibility, CAMERA, seed=0)
+    assert np.isfinite(shapes).all()
+    seen = shapes[-1, :12]
+    np.testing.assert_allclose(seen[:, :2] / seen[:, 2:], rays[-1, :12], atol=1e-12)
+    result = _solve(W, intrinsics=CAMERA, visibility=visibility)
+    assert np.isfinite(result.shapes).all()
