@@ -151,29 +151,50 @@ def _fill_hidden(shapes: np.ndarray, known: np.ndarray) -> np.ndarray:
     that have them, each moved by the object's rigid motion between the two frames
     (:func:`_rigid_motion` of the points both frames have), and the median of those
     positions, coordinate by coordinate (fewer sources where the point is seen in fewer
-    frames). O(F P) per pair of frames, at most ``FILL_SOURCES`` sources per frame and point.
+    frames). A source that shares no point with the frame gives no motion; an entry left
+    without a position for that reason is taken in a second pass from the nearest frames
+    that have one after the first, moved by the frame's own points. O(F P) per pair of
+    frames, at most ``FILL_SOURCES`` sources per frame and point and pass.
     """
     if known.all():
         return shapes
+    filled = _fill_pass(shapes, known, known)
+    filled_entries = np.isfinite(filled).all(axis=2)
+    if filled_entries.all() or not (filled_entries & ~known).any():
+        return filled
+    return _fill_pass(filled, filled_entries, known)
+
+
+def _fill_pass(shapes: np.ndarray, available: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """One pass of :func:`_fill_hidden`: the entries not ``available`` (F, P) from the nearest
+    frames where they are, moved by the rigid motion of the points that are ``anchors`` (F, P)
+    in the frame and available in the source."""
     filled = shapes.copy()
-    sources = _nearest_known(known, FILL_SOURCES)
-    for frame in range(known.shape[0]):
-        todo = np.flatnonzero(~known[frame] & (sources[0, frame] >= 0))
+    sources = _nearest_known(available, FILL_SOURCES)
+    for frame in range(available.shape[0]):
+        todo = np.flatnonzero(~available[frame] & (sources[0, frame] >= 0))
         if todo.size:
-            moved = _moved_to(frame, todo, sources[:, frame, todo], shapes, known)
+            moved = _moved_to(frame, todo, sources[:, frame, todo], shapes, available, anchors)
             filled[frame, todo] = np.nanmedian(moved, axis=0)
     return filled
 
 
 def _moved_to(
-    frame: int, points: np.ndarray, sources: np.ndarray, shapes: np.ndarray, known: np.ndarray
+    frame: int,
+    points: np.ndarray,
+    sources: np.ndarray,
+    shapes: np.ndarray,
+    available: np.ndarray,
+    anchors: np.ndarray,
 ) -> np.ndarray:
     """``points`` (n,) as seen in each of their ``sources`` (S, n) (-1: none), moved into
-    ``frame`` by the rigid motion of the points known in both frames: (S, n, 3), NaN where
-    there is no source."""
+    ``frame`` by the rigid motion of the points that are ``anchors`` in the frame and
+    ``available`` in the source: (S, n, 3), NaN where there is no source or no such point."""
     moved = np.full(sources.shape + (3,), np.nan)
     for source in np.unique(sources[sources >= 0]):
-        both = known[frame] & known[source]
+        both = anchors[frame] & available[source]
+        if not both.any():
+            continue
         rotation, shift = _rigid_motion(shapes[source, both], shapes[frame, both])
         rank, column = np.nonzero(sources == source)
         moved[rank, column] = shapes[source, points[column]] @ rotation.T + shift

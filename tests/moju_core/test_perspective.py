@@ -111,6 +111,25 @@ def test_a_hidden_point_turns_with_the_object():
     np.testing.assert_allclose(filled[1, 3], expected, atol=1e-9)
 
 
+def test_a_hidden_point_whose_frames_share_no_point_with_this_one_is_still_moved():
+    # Point 0 is seen in frame 0 only, with points 1-3; frame 2 sees only points 4-6, none of
+    # which frame 0 sees. Frame 1 sees 1-6 and links them: point 0 reaches frame 2 through it
+    # (a turning object, so the turn must be carried, not only the shift).
+    rng = np.random.default_rng(2)
+    first = rng.normal(size=(7, 3)) + [0.0, 0.0, 4.0]
+    turns = []
+    for degrees in (0.0, 20.0, 40.0):
+        angle = np.radians(degrees)
+        cos, sin = np.cos(angle), np.sin(angle)
+        turns.append(np.array([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]]))
+    truth = np.stack([first @ turn.T + [0.1 * f, 0.0, 0.2 * f] for f, turn in enumerate(turns)])
+    visibility = np.zeros((3, 7), bool)
+    visibility[0, :4] = visibility[1, 1:] = visibility[2, 4:] = True
+    filled = _fill_hidden(np.where(visibility[:, :, None], truth, np.nan), visibility)
+    assert np.isfinite(filled).all()
+    np.testing.assert_allclose(filled, truth, atol=1e-9)
+
+
 def test_one_wrong_frame_before_a_point_is_lost_is_outvoted():
     # A still object; the point is lost after frame 3 and was misplaced in frame 3, the frame
     # just before (a track is least reliable where the surface turns away).
