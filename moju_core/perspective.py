@@ -18,7 +18,8 @@ solve instead
 
 Hidden entries have no ray depth: the prior's shape of a hidden point is taken from the three
 nearest frames that see it, each moved by the rigid motion of the points both frames see, and
-the median of the three kept. Costs:
+the median of the three kept (where those frames share no point with its frame, from the frames
+filled so, in a second pass). Costs:
 those of the prior (a cone program on a few hundred anchors, then an interpolation of the
 other points' depths from m = 8 anchors each, O(F P (m + log A))) and of the loop.
 """
