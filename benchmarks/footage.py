@@ -536,6 +536,7 @@ def prior_ablation_table(
                 ])  # fmt: skip
     return [f"## {title}", "", *table(header, lines)]
 
+
 def write_tracks_only(
     name: str, meta: dict[str, Any], settings: dict[str, Any], splits: dict[str, list[dict]]
 ) -> None:

@@ -58,9 +58,7 @@ def compare(W: np.ndarray, visibility: np.ndarray, camera: Intrinsics, truth: np
         prior, _ = perspective.prior_shapes(np.nan_to_num(W), visibility, camera, 0)
         rows["prior alone"] = {**_scores(prior, truth), "s": time.perf_counter() - tic}
         tic = time.perf_counter()
-        full = reconstruct(
-            W, SolverParams(seed=0), visibility=masked, intrinsics=camera, threads=1
-        )
+        full = reconstruct(W, SolverParams(seed=0), visibility=masked, intrinsics=camera, threads=1)
         rows["prior + loop"] = {**_scores(full.shapes, truth), "s": time.perf_counter() - tic}
     return rows
 

@@ -142,24 +142,38 @@ def run_real(data: Path, variants: dict[str, dict], noise_px: float = 0.0) -> di
         }
         for label, kwargs in variants.items():
             fit = max_depth_shapes(seq.rays, seq.visibility, **kwargs)
-            rows[name][label] = {**_score(fit.shapes, seq.truth),
-                                 "status": fit.status,
-                                 "seconds": round(fit.seconds["total"], 2)}
+            rows[name][label] = {
+                **_score(fit.shapes, seq.truth),
+                "status": fit.status,
+                "seconds": round(fit.seconds["total"], 2),
+            }
             print(name, label, rows[name][label], flush=True)
     return rows
 
 
-def run_synthetic(seeds: list[int], *, n_points: int, n_frames: int, turn_deg: float,
-                  outlier_fraction: float, kwargs: dict) -> list[dict]:
+def run_synthetic(
+    seeds: list[int],
+    *,
+    n_points: int,
+    n_frames: int,
+    turn_deg: float,
+    outlier_fraction: float,
+    kwargs: dict,
+) -> list[dict]:
     """Score the prior on bent sheets, one row per seed."""
     rows = []
     for seed in seeds:
-        rays, truth = bent_sheet(n_points, n_frames, turn_deg=turn_deg,
-                                 outlier_fraction=outlier_fraction, seed=seed)
+        rays, truth = bent_sheet(
+            n_points, n_frames, turn_deg=turn_deg, outlier_fraction=outlier_fraction, seed=seed
+        )
         fit = max_depth_shapes(rays, None, seed=seed, **kwargs)
-        row = {"seed": seed, **_score(fit.shapes, truth), "status": fit.status,
-               "seconds": {k: round(v, 2) for k, v in fit.seconds.items()},
-               "violation": round(fit.violation, 5)}
+        row = {
+            "seed": seed,
+            **_score(fit.shapes, truth),
+            "status": fit.status,
+            "seconds": {k: round(v, 2) for k, v in fit.seconds.items()},
+            "violation": round(fit.violation, 5),
+        }
         print(row, flush=True)
         rows.append(row)
     return rows
@@ -178,8 +192,12 @@ REAL_VARIANTS = {
 
 def _write(name: str, payload: dict) -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
-    payload = {**payload, "machine": platform.node(), "python": platform.python_version(),
-               "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    payload = {
+        **payload,
+        "machine": platform.node(),
+        "python": platform.python_version(),
+        "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
     (RESULTS / f"{name}.json").write_text(json.dumps(payload, indent=1))
 
 
@@ -210,28 +228,46 @@ def main() -> None:
 
     if args.part == "real":
         rows = run_real(args.data, {v: REAL_VARIANTS[v] for v in args.variants}, args.noise_px)
-        _write(f"real{args.tag}", {"rows": rows, "published": REFERENCE,
-                                   "noise_px": args.noise_px})
+        _write(f"real{args.tag}", {"rows": rows, "published": REFERENCE, "noise_px": args.noise_px})
     elif args.part == "synthetic":
         kwargs = {"n_anchor": args.n_anchor, "refine_iter": args.refine_iter}
-        common = dict(n_points=args.points, n_frames=args.frames, turn_deg=args.turn,
-                      outlier_fraction=args.outliers, kwargs=kwargs)
+        common = dict(
+            n_points=args.points,
+            n_frames=args.frames,
+            turn_deg=args.turn,
+            outlier_fraction=args.outliers,
+            kwargs=kwargs,
+        )
         design = run_synthetic(args.seeds, **common)
         held = run_synthetic(args.held_out, **common)
-        summary = {part: {m: round(float(np.mean([r[m] for r in rows])), 4)
-                          for m in ("e3d", "out_of_plane")}
-                   for part, rows in (("design", design), ("held_out", held))}
+        summary = {
+            part: {
+                m: round(float(np.mean([r[m] for r in rows])), 4) for m in ("e3d", "out_of_plane")
+            }
+            for part, rows in (("design", design), ("held_out", held))
+        }
         print(summary)
-        _write(f"synthetic{args.tag}", {"settings": {**common, "noise_px": 0.5, "focal_px": 800},
-                                        "design": design, "held_out": held, "summary": summary})
+        _write(
+            f"synthetic{args.tag}",
+            {
+                "settings": {**common, "noise_px": 0.5, "focal_px": 800},
+                "design": design,
+                "held_out": held,
+                "summary": summary,
+            },
+        )
     else:
         rows = []
         for n in args.points:
             rays, truth = bent_sheet(n, args.frames, turn_deg=15.0, seed=7)
             fit = max_depth_shapes(rays, None, n_anchor=args.n_anchor)
-            row = {"points": n, "frames": args.frames, **_score(fit.shapes, truth),
-                   "n_edges": fit.n_edges,
-                   "seconds": {k: round(v, 2) for k, v in fit.seconds.items()}}
+            row = {
+                "points": n,
+                "frames": args.frames,
+                **_score(fit.shapes, truth),
+                "n_edges": fit.n_edges,
+                "seconds": {k: round(v, 2) for k, v in fit.seconds.items()},
+            }
             print(row, flush=True)
             rows.append(row)
         _write(f"timing{args.tag}", {"rows": rows})

@@ -268,9 +268,7 @@ def refine_on_prior(
         signal_rank=significant_rank(singular, flat_tracks.shape),
     )
     observed = None if visibility.all() else visibility
-    term = AnchoredTerm.over(
-        n_frames, n_points, observed, anchor=centred, weight=ANCHOR_WEIGHT
-    )
+    term = AnchoredTerm.over(n_frames, n_points, observed, anchor=centred, weight=ANCHOR_WEIGHT)
     out = admm.run(tracks, admm.LoopCameras(rotations), params, term, hook=hook)
     shapes = _onto_rays(out.shapes.transpose(0, 2, 1) * scale + centroid, prior)
     if observed is not None:

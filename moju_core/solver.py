@@ -281,9 +281,7 @@ def _estimate_cameras(
     camera_input, decomposition = tracks.centred, tracks.decomposition
     if completed is not None:
         noisy = tracks.noise > defaults.EXACT_DATA_NOISE
-        camera_input, decomposition = camera_tracks(
-            completed, measured_tracks, tracks.scale, noisy
-        )
+        camera_input, decomposition = camera_tracks(completed, measured_tracks, tracks.scale, noisy)
     return cameras.estimate_cameras(
         camera_input,
         params.rotations,
@@ -350,7 +348,9 @@ def _plan(
         signal_fitted = fit is not None
     exact = fits_exactly(exact_data, estimate.refine, params.smoothness)
     masked = (
-        exact and not signal_fitted and completed is not None
+        exact
+        and not signal_fitted
+        and completed is not None
         and (completed.fitted is not None or completed.borrowed)
     )
     term_name = solve_plan.data_term_name(
@@ -558,9 +558,7 @@ def _weigh_by_discrepancy(out: admm.LoopOutput, solve: _Solve, again) -> admm.Lo
     """Solve again (``again(params, previous)``) with a larger nuclear-norm weight while the
     fit absorbs most of the noise (:mod:`moju_core.priors.discrepancy`)."""
     for _ in range(discrepancy.RESOLVES):
-        ratio = discrepancy.discrepancy(
-            solve.tracks, out.rotations, out.shapes, solve.plan.noise
-        )
+        ratio = discrepancy.discrepancy(solve.tracks, out.rotations, out.shapes, solve.plan.noise)
         if ratio >= discrepancy.ABSORBED:
             break
         beta2 = discrepancy.next_weight(solve.params.beta2, ratio)

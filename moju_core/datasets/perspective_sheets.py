@@ -12,8 +12,9 @@ def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
-def cylinder_sheet(n_points: int = 80, n_frames: int = 6, seed: int = 0,
-                   noise: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def cylinder_sheet(
+    n_points: int = 80, n_frames: int = 6, seed: int = 0, noise: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
     """A 2 x 1.4 sheet rolled onto cylinders of changing radius, 3 units away, in perspective.
 
     Isometric by construction (arc length along the bend is kept). Returns rays (F, P, 2) and

@@ -139,8 +139,9 @@ def load_totem(directory: str | Path, name: str) -> TotemSequence:
     K = _read_intrinsics(directory / f"intrinsics_{name}.txt")
     rays = pixels_to_rays(pixels, K)
 
-    init = loadmat(directory / f"{name}_Initialisation.mat", squeeze_me=True,
-                   struct_as_record=False)["initialisations"]
+    init = loadmat(
+        directory / f"{name}_Initialisation.mat", squeeze_me=True, struct_as_record=False
+    )["initialisations"]
     references = {}
     for key, field in (("MDH", "MDH_SOCP"), ("MaxRig", "MLH_SDP")):
         depth_list = np.atleast_1d(getattr(init, field).initialDepth)

@@ -70,6 +70,7 @@ class LoopCameras:
     rotations: np.ndarray
     refine: bool = False
 
+
 #: The per-iteration diagnostics of :attr:`LoopOutput.history`, in the order of iterate().
 HISTORY_KEYS = (
     "gap",
@@ -315,9 +316,7 @@ def refit_rotations(state: LoopState) -> None:
     state.normals = camera.viewing_directions(state.rotations)
 
 
-def low_rank_update(
-    state: LoopState, settings: LoopSettings, term: DataTerm, keep: int
-) -> float:
+def low_rank_update(state: LoopState, settings: LoopSettings, term: DataTerm, keep: int) -> float:
     """Step 10, the S#-update: singular value thresholding of ``f(S) - L1/rho`` by beta2/rho,
     with the ``keep`` leading values left unshrunk.
 

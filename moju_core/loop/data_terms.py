@@ -89,9 +89,7 @@ class DataTerm:
     def prepare(self, state: LoopState, iteration: int) -> None:
         """What the term updates before the S-step of ``iteration`` (1-based); nothing here."""
 
-    def shape_step(
-        self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray
-    ) -> None:
+    def shape_step(self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray) -> None:
         """The S-update towards ``target`` (F, 3, P) = ``S# + L1/rho``, in place on the shapes.
 
         Per frame and point a 3 x 3 solve over the fitted entries
@@ -178,9 +176,7 @@ class BandedPriorTerm(SoftTerm):
     name = "banded-prior"
     solves_prior = True
 
-    def shape_step(
-        self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray
-    ) -> None:
+    def shape_step(self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray) -> None:
         if state.observed is not None:
             filled = camera.fill_unobserved(
                 state.rotations, state.tracks, state.shapes, state.observed
@@ -204,9 +200,7 @@ class ExactTerm(DataTerm):
     exact = True
     solves_prior = True
 
-    def shape_step(
-        self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray
-    ) -> None:
+    def shape_step(self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray) -> None:
         self._pull(state, prior)
         temporal_prior.depth_step(
             state.back_projected,
@@ -222,9 +216,7 @@ class ExactTerm(DataTerm):
     def _pull(state: LoopState, prior: TemporalPrior | None) -> None:
         """The exact fit's constant term, computed once (the tracks do not move)."""
         if state.depth_pull is None:
-            state.depth_pull = temporal_prior.depth_pull(
-                state.back_projected, state.normals, prior
-            )
+            state.depth_pull = temporal_prior.depth_pull(state.back_projected, state.normals, prior)
 
 
 @dataclass(eq=False)
@@ -244,9 +236,7 @@ class MaskedExactTerm(ExactTerm):
     name = "masked-exact"
     limit: float = float("inf")
 
-    def shape_step(
-        self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray
-    ) -> None:
+    def shape_step(self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray) -> None:
         self._pull(state, prior)
         hidden = ~state.measured
         temporal_prior.masked_depth_step(
@@ -295,9 +285,7 @@ class AnchoredTerm(SoftTerm):
         state.shapes[...] = state.anchor
         state.sharp[...] = state.anchor.reshape(state.sharp.shape)
 
-    def shape_step(
-        self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray
-    ) -> None:
+    def shape_step(self, state: LoopState, prior: TemporalPrior | None, target: np.ndarray) -> None:
         total = state.rho + self.weight
         self._soft_step(state, (state.rho * target + self.weight * state.anchor) / total, total)
 

@@ -201,7 +201,9 @@ def _solve_scaled(
     """:func:`solve_max_depth_cone` with one length scale (``"edges"`` or ``"pairs"``)."""
     start = time.perf_counter()
     program = _assemble_program(
-        pairs, soft_bounds=bool(np.isfinite(outlier_price)), lengths=lengths,
+        pairs,
+        soft_bounds=bool(np.isfinite(outlier_price)),
+        lengths=lengths,
         length_scale=length_scale,
     )
     status, best = _solve_program(program, _first_round_cost(program))
@@ -295,8 +297,10 @@ def _edge_image_pairs(rays: np.ndarray, seen: np.ndarray, edges: np.ndarray) -> 
     cols = np.concatenate([var_index[frame_of, i_pts], var_index[frame_of, j_pts]])
     diffs = [
         sp.csr_matrix(
-            (np.concatenate([q[frame_of, i_pts, c], -q[frame_of, j_pts, c]]),
-             (np.concatenate([rows, rows]), cols)),
+            (
+                np.concatenate([q[frame_of, i_pts, c], -q[frame_of, j_pts, c]]),
+                (np.concatenate([rows, rows]), cols),
+            ),
             shape=(n_cones, n_var),
         )
         for c in range(3)
@@ -377,11 +381,17 @@ def _assemble_program(
     zero_d = sp.csr_matrix((n_cones, n_var))
     zero_s = sp.csr_matrix((n_cones, n_cones))
     loosen = sp.eye(n_cones, format="csr") if n_t else sp.csr_matrix((n_cones, 0))
-    stacked = sp.vstack([
-        sp.hstack([zero_d, pairs.pick, zero_s, loosen]),
-        *[sp.hstack([m, sp.csr_matrix((n_cones, n_len)), zero_s,
-                     sp.csr_matrix((n_cones, n_t))]) for m in pairs.diffs],
-    ]).tocsr()
+    stacked = sp.vstack(
+        [
+            sp.hstack([zero_d, pairs.pick, zero_s, loosen]),
+            *[
+                sp.hstack(
+                    [m, sp.csr_matrix((n_cones, n_len)), zero_s, sp.csr_matrix((n_cones, n_t))]
+                )
+                for m in pairs.diffs
+            ],
+        ]
+    ).tocsr()
     # Clarabel wants each cone's 4 rows together: interleave the 4 blocks of C rows.
     order = (np.arange(4)[None, :] * n_cones + np.arange(n_cones)[:, None]).ravel()
     rows = np.zeros(n_len, dtype=np.int64) if lengths is None else np.arange(n_len)
@@ -403,9 +413,7 @@ def _candidate_scales(
     different programs (lengths not ``fixed`` and the edges not all seen whole in the same
     number of images), else the edge scale alone."""
     if length_scale not in ("edges", "pairs", "auto"):
-        raise ValueError(
-            f"length_scale must be 'edges', 'pairs' or 'auto', got {length_scale!r}"
-        )
+        raise ValueError(f"length_scale must be 'edges', 'pairs' or 'auto', got {length_scale!r}")
     if length_scale != "auto":
         return [length_scale]
     counts = _length_weights(pairs, "pairs")
@@ -472,7 +480,7 @@ def _first_round_cost(program: _ConeProgram) -> np.ndarray:
     """Objective (n_x,) of the plain program: maximise the sum of depths."""
     cost = np.zeros(program.n_x)
     cost[program.depths] = -1.0
-    cost[program.slacks.start:] = 1e3  # slacks are unused, make them expensive
+    cost[program.slacks.start :] = 1e3  # slacks are unused, make them expensive
     return cost
 
 
@@ -490,7 +498,7 @@ def _consistency_cost(
     cost[program.depths] = -1.0 / (n_var * mean_depth)
     cost[program.slacks] = rigidity / n_cones
     if program.n_t:
-        cost[program.slacks.stop:] = outlier_price / n_cones
+        cost[program.slacks.stop :] = outlier_price / n_cones
     return cost
 
 
@@ -509,8 +517,14 @@ def _linearised_lower(program: _ConeProgram, previous: np.ndarray) -> sp.csr_mat
 
 
 def _consistency_rounds(
-    program: _ConeProgram, cost: np.ndarray, best: np.ndarray, start: np.ndarray, status: str,
-    *, n_rounds: int, tol: float,
+    program: _ConeProgram,
+    cost: np.ndarray,
+    best: np.ndarray,
+    start: np.ndarray,
+    status: str,
+    *,
+    n_rounds: int,
+    tol: float,
 ) -> tuple[str, np.ndarray, int, float]:
     """Linearise the lower bounds around the depths ``start`` (V,), then around each round's
     solution, and re-solve, up to ``n_rounds`` times.
@@ -548,8 +562,14 @@ def _smoothed(rays: np.ndarray, pairs: _EdgeImagePairs, first: np.ndarray) -> li
 
 
 def _cheapest_rounds(
-    program: _ConeProgram, cost: np.ndarray, best: np.ndarray, starts: list[np.ndarray],
-    status: str, *, n_rounds: int, tol: float,
+    program: _ConeProgram,
+    cost: np.ndarray,
+    best: np.ndarray,
+    starts: list[np.ndarray],
+    status: str,
+    *,
+    n_rounds: int,
+    tol: float,
 ) -> tuple[str, np.ndarray, int, float]:
     """:func:`_consistency_rounds` from each of ``starts`` (each (V,)); the result of lowest
     ``cost`` among those whose rounds solved, else the first start's, with the rounds solved
@@ -570,6 +590,6 @@ def _unpack(pairs: _EdgeImagePairs, x: np.ndarray | None) -> tuple[np.ndarray, n
     depths = np.full(pairs.constrained.shape, np.nan)
     lengths = np.full(pairs.n_edges, np.nan)
     if x is not None:
-        depths[pairs.constrained] = x[:pairs.n_var]
-        lengths[pairs.used_edges] = x[pairs.n_var:pairs.n_var + pairs.n_len]
+        depths[pairs.constrained] = x[: pairs.n_var]
+        lengths[pairs.used_edges] = x[pairs.n_var : pairs.n_var + pairs.n_len]
     return depths, lengths

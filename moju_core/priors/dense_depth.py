@@ -28,8 +28,12 @@ def homogeneous(rays: np.ndarray) -> np.ndarray:
 
 
 def interpolate_depths(
-    rays: np.ndarray, seen: np.ndarray, anchors: np.ndarray, anchor_depths: np.ndarray,
-    *, m: int = 8,
+    rays: np.ndarray,
+    seen: np.ndarray,
+    anchors: np.ndarray,
+    anchor_depths: np.ndarray,
+    *,
+    m: int = 8,
 ) -> np.ndarray:
     """Depths of all seen points from the anchors' depths, by local planes.
 
@@ -123,8 +127,15 @@ def edge_bounds(
 
 
 def _refine_image(
-    q: np.ndarray, d: np.ndarray, free: np.ndarray, i: np.ndarray, j: np.ndarray,
-    bounds: np.ndarray, n_iter: int, push: float, n_project: int,
+    q: np.ndarray,
+    d: np.ndarray,
+    free: np.ndarray,
+    i: np.ndarray,
+    j: np.ndarray,
+    bounds: np.ndarray,
+    n_iter: int,
+    push: float,
+    n_project: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Push-and-project iterations on one image; returns its depths and final edge excess."""
     n_points = d.size
@@ -157,8 +168,15 @@ def _refine_image(
 
 
 def refine_depths(
-    rays: np.ndarray, seen: np.ndarray, edges: np.ndarray, depths: np.ndarray,
-    anchors: np.ndarray, *, n_iter: int = 60, push: float = 2e-3, n_project: int = 3,
+    rays: np.ndarray,
+    seen: np.ndarray,
+    edges: np.ndarray,
+    depths: np.ndarray,
+    anchors: np.ndarray,
+    *,
+    n_iter: int = 60,
+    push: float = 2e-3,
+    n_project: int = 3,
 ) -> tuple[np.ndarray, float]:
     """Maximum-depth refinement of all points with the inextensibility bounds as a penalty.
 

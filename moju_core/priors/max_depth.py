@@ -262,8 +262,13 @@ def max_depth_shapes(
     seconds["graph"] = time.perf_counter() - t0
 
     cone = solve_by_key_images(
-        rays[:, anchors], seen[:, anchors], anchor_edges, rigidity=rigidity,
-        outlier_price=outlier_price, n_key=n_key_images, smoothed_starts=smoothed_starts,
+        rays[:, anchors],
+        seen[:, anchors],
+        anchor_edges,
+        rigidity=rigidity,
+        outlier_price=outlier_price,
+        n_key=n_key_images,
+        smoothed_starts=smoothed_starts,
         length_scale=length_scale,
     )
     cone_depths = hold_cut_off_groups(
@@ -277,13 +282,27 @@ def max_depth_shapes(
         seconds["interpolate"] = seconds["refine"] = 0.0
     else:
         depths, violation, n_edges = _dense_depths(
-            rays, seen, anchors, cone_depths, k=k, refine_iter=refine_iter,
-            n_anchor_edges=n_edges, seconds=seconds,
+            rays,
+            seen,
+            anchors,
+            cone_depths,
+            k=k,
+            refine_iter=refine_iter,
+            n_anchor_edges=n_edges,
+            seconds=seconds,
         )
 
     depths, shapes = _scaled_shapes(rays, seen, depths)
     seconds["total"] = time.perf_counter() - t_start
     return SurfaceFit(
-        depths, shapes, anchors, cone.status, seconds, violation, n_edges,
-        cone.n_solves, cone.shrink, cone.length_scale,
+        depths,
+        shapes,
+        anchors,
+        cone.status,
+        seconds,
+        violation,
+        n_edges,
+        cone.n_solves,
+        cone.shrink,
+        cone.length_scale,
     )

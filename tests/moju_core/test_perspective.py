@@ -38,8 +38,9 @@ def sheet():
 def _solve(W, **options):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return reconstruct(W, SolverParams(seed=0, max_iter=60, **options.pop("params", {})),
-                           **options)
+        return reconstruct(
+            W, SolverParams(seed=0, max_iter=60, **options.pop("params", {})), **options
+        )
 
 
 def test_a_camera_gives_depth_where_the_orthographic_solve_stays_flat(sheet):

@@ -18,8 +18,12 @@ from moju_core.datasets.totem import (
 
 DATA = Path(os.environ.get("MOJU_TOTEM_DIR", "/work/shared/data/totem"))
 # Published scores of the reference depths (data README): MDH, MaxRig.
-PUBLISHED = {"kinectPaper": (0.058, 0.059), "whiteCartoonTshirt": (0.064, 0.064),
-             "hulk": (0.075, 0.074), "cushion": (0.120, 0.113)}
+PUBLISHED = {
+    "kinectPaper": (0.058, 0.059),
+    "whiteCartoonTshirt": (0.064, 0.064),
+    "hulk": (0.075, 0.074),
+    "cushion": (0.120, 0.113),
+}
 
 
 @pytest.fixture(scope="module", params=TOTEM_NAMES)
@@ -46,9 +50,11 @@ def test_shapes_consistent(sequence):
 def test_references_reproduced(sequence):
     mdh, maxrig = PUBLISHED[sequence.name]
     assert scaled_e3d(sequence.reference_shapes("MDH"), sequence.truth) == pytest.approx(
-        mdh, abs=6e-4)
+        mdh, abs=6e-4
+    )
     assert scaled_e3d(sequence.reference_shapes("MaxRig"), sequence.truth) == pytest.approx(
-        maxrig, abs=6e-4)
+        maxrig, abs=6e-4
+    )
 
 
 def test_scorer_invariances():

@@ -97,8 +97,11 @@ def test_unsubscribing_does_not_wait_for_the_listeners_long_read(redis_url: str)
     at once (RQ 3.0's own unsubscribe waited those 60 s with redis-py 8.2, past the shutdown
     deadline of ``moju serve`` and of the tests that stop a worker)."""
     connection = Redis.from_url(redis_url)
-    worker = runner.MojuWorker([Queue("unsubscribe-test", connection=connection)],
-                               connection=connection, name="unsubscribing")
+    worker = runner.MojuWorker(
+        [Queue("unsubscribe-test", connection=connection)],
+        connection=connection,
+        name="unsubscribing",
+    )
     worker.subscribe()
     until = time.monotonic() + 10
     while not worker.pubsub.subscribed and time.monotonic() < until:

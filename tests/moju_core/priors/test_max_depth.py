@@ -129,8 +129,9 @@ def test_rejects_single_image():
 def test_dense_stage_with_missing_entries():
     rays, truth = cylinder_sheet(n_points=400, n_frames=5, seed=2)
     visibility = np.random.default_rng(4).random(rays.shape[:2]) > 0.2
-    result = max_depth_shapes(np.where(visibility[..., None], rays, np.nan), visibility,
-                              n_anchor=60, seed=2)
+    result = max_depth_shapes(
+        np.where(visibility[..., None], rays, np.nan), visibility, n_anchor=60, seed=2
+    )
     assert np.all(np.isnan(result.depths[~visibility]))
     assert np.all(result.depths[visibility] > 0)
     always = visibility.all(axis=0)
