@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -74,19 +75,33 @@ def rank3_fit(W: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return u[:, :3] * np.sqrt(s[:3]), np.einsum("ip,ip->p", residual, residual) / W.shape[0]
 
 
-def l1_fit(W: np.ndarray, start: np.ndarray, variance: float) -> tuple[np.ndarray, float]:
-    """IRLS for ``sum_p sqrt(r_p^2 + sigma^2)`` from the marker weights ``start``: the motion
-    factor and the cost reached."""
+def reweighted_fit(
+    W: np.ndarray,
+    start: np.ndarray,
+    weight: Callable[[np.ndarray], np.ndarray],
+    tolerance: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Iteratively reweighted rank-3 fit from the marker weights ``start``: each step's weights
+    are ``weight(squared distances)``, scaled to a largest of 1, until they change by less than
+    ``tolerance``. The motion factor and the markers' squared distances at the end."""
     weights = start.astype(np.float64)
     for _ in range(IRLS_ITERATIONS):
         _, squared = rank3_fit(W, weights)
-        updated = 1.0 / np.sqrt(squared + variance + 1e-30)
+        updated = weight(squared)
         updated /= updated.max()
-        converged = np.max(np.abs(updated - weights)) < 1e-7
+        converged = np.max(np.abs(updated - weights)) < tolerance
         weights = updated
         if converged:
             break
-    factor, squared = rank3_fit(W, weights)
+    return rank3_fit(W, weights)
+
+
+def l1_fit(W: np.ndarray, start: np.ndarray, variance: float) -> tuple[np.ndarray, float]:
+    """IRLS for ``sum_p sqrt(r_p^2 + sigma^2)`` from the marker weights ``start``: the motion
+    factor and the cost reached."""
+    factor, squared = reweighted_fit(
+        W, start, lambda squared: 1.0 / np.sqrt(squared + variance + 1e-30), 1e-7
+    )
     return factor, float(np.sqrt(squared + variance).sum())
 
 
@@ -108,16 +123,9 @@ def cauchy_scale(squared: np.ndarray) -> float:
 def cauchy_fit(W: np.ndarray, start: np.ndarray) -> tuple[np.ndarray, float]:
     """IRLS for the Cauchy fit from the marker weights ``start``: the motion factor and the
     negative log-likelihood reached, ``sum_p log(1 + r_p^2 / s^2) + P log s``."""
-    weights = start.astype(np.float64)
-    for _ in range(IRLS_ITERATIONS):
-        _, squared = rank3_fit(W, weights)
-        updated = 1.0 / (cauchy_scale(squared) + squared)
-        updated /= updated.max()
-        converged = np.max(np.abs(updated - weights)) < 1e-8
-        weights = updated
-        if converged:
-            break
-    factor, squared = rank3_fit(W, weights)
+    factor, squared = reweighted_fit(
+        W, start, lambda squared: 1.0 / (cauchy_scale(squared) + squared), 1e-8
+    )
     scale = cauchy_scale(squared)
     return factor, float(np.sum(np.log1p(squared / scale)) + 0.5 * squared.size * np.log(scale))
 
