@@ -37,7 +37,7 @@ every seed. Results: ``benchmarks/results/footage/footage[_quick].json`` and ``.
     PYTHONPATH=. nice python benchmarks/footage.py --no-ortho --edge-lengths \\
         --tag _edge_lengths  # ablation: lengths scaled over the edges alone
     PYTHONPATH=. nice python benchmarks/footage.py --no-ortho --unchecked \\
-        --tag _unchecked  # ablation: the tracker without its neighbour check
+        --tag _unchecked  # ablation: the solve without its neighbour check
 """
 
 from __future__ import annotations
@@ -55,11 +55,10 @@ import numpy as np
 from harness import RESULTS, provenance, table, write_json, write_markdown
 from tracking import perfect_tracks
 
-from moju_core import SolverParams, perspective, reconstruct
+from moju_core import SolverParams, neighbour_check, perspective, reconstruct
 from moju_core.cameras.intrinsics import DEFAULT_FOCAL_FACTOR, Intrinsics
 from moju_core.datasets.footage_scenes import FOOTAGE_KINDS, FootageScene, footage_scene
 from moju_core.datasets.totem import out_of_plane_ratio, scaled_e3d
-from moju_core.footage import tracking as tracking_module
 from moju_core.footage.perspective_render import PerspectiveVideo, render_perspective
 from moju_core.footage.render import score_tracks
 from moju_core.footage.tracking import Tracks, track_frames
@@ -151,14 +150,14 @@ def visible_e3d(estimate: np.ndarray, truth: np.ndarray, visible: np.ndarray) ->
 
 @contextlib.contextmanager
 def neighbour_check_off() -> Iterator[None]:
-    """Within the block, ``track_frames`` keeps every position its flow checks pass (the
-    ablation of the tracker's neighbour check)."""
-    original = tracking_module.departures
-    tracking_module.departures = lambda W, visibility, tolerance_px: np.zeros_like(visibility)
+    """Within the block, the perspective solve keeps every seen position (the ablation of
+    ``moju_core.neighbour_check``)."""
+    original = neighbour_check.trusted
+    neighbour_check.trusted = lambda W, visibility: visibility
     try:
         yield
     finally:
-        tracking_module.departures = original
+        neighbour_check.trusted = original
 
 
 @contextlib.contextmanager
@@ -189,6 +188,7 @@ def solve(
         "e3d_visible": visible_e3d(result.shapes, truth, source.visibility),
         "out_of_plane": out_of_plane_ratio(result.shapes, truth),
         "seconds": time.perf_counter() - start,
+        "set_aside": int(source.visibility.sum() - result.visibility.sum()),
     }
 
 
@@ -331,27 +331,11 @@ def run_scene(kind: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
                 source, intrinsics = solves[label]
                 row[f"{prefix} {label}"] = solve(source, intrinsics, truth, **options)
     if args.unchecked:
-        row.update(unchecked_solves(video, camera, kept))
+        for label in ("tracks", "perfect"):
+            source, intrinsics = solves[label]
+            with neighbour_check_off():
+                row[f"unchecked {label}"] = solve(source, intrinsics, truth)
     return judge(row)
-
-
-def unchecked_solves(
-    video: PerspectiveVideo, camera: Intrinsics, checked: Tracks
-) -> dict[str, Any]:
-    """The ablation of the neighbour check: the same video tracked without it, its tracks and
-    perfect tracks solved and scored as the default ones (their own points), and how many
-    track-frames the check hid among the unchecked solvable tracks."""
-    with neighbour_check_off():
-        tracks = replace(track_frames(list(video.frames), mask=video.mask), intrinsics=camera)
-    kept, perfect, index = perfect_tracks(video, tracks)
-    truth = video.paths_3d[:, index]
-    return {
-        "unchecked tracks": solve(kept, camera, truth),
-        "unchecked perfect": solve(perfect, camera, truth),
-        "unchecked points": int(index.size),
-        "checked entries": int(checked.visibility.sum()),
-        "unchecked entries": int(kept.visibility.sum()),
-    }
 
 
 def judge(row: dict[str, Any]) -> dict[str, Any]:
@@ -483,7 +467,7 @@ def markdown(splits: dict[str, list[dict[str, Any]]]) -> list[str]:
         diag,
     )
     ablations = [(prefix, title) for prefix, _, title in PRIOR_ABLATIONS.values()]
-    ablations.append(("unchecked", "Tracks without the tracker's neighbour check (ablation)"))
+    ablations.append(("unchecked", "Without the neighbour check (ablation)"))
     for prefix, title in ablations:
         if any(f"{prefix} tracks" in r for rows in splits.values() for r in rows):
             body += ["", *prior_ablation_table(splits, prefix, title)]
@@ -523,7 +507,7 @@ def main() -> None:
     parser.add_argument(
         "--unchecked",
         action="store_true",
-        help="ablation: also track without the neighbour check and solve those tracks",
+        help="ablation: also solve without the neighbour check (every seen position kept)",
     )
     parser.add_argument(
         "--drop-px",

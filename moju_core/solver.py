@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moju_core import cameras, defaults, feasibility, perspective, solve_plan
+from moju_core import cameras, defaults, feasibility, neighbour_check, perspective, solve_plan
 from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.cameras.smoothing import smooth_rotations
 from moju_core.completion.completed import (
@@ -625,12 +625,16 @@ def _perspective_reconstruct(
     report: _Reporter,
     start: float,
 ) -> Result:
-    """The perspective path (:mod:`moju_core.perspective`): the isometric prior's shapes,
-    then the loop anchored to them, in each image's camera frame."""
+    """The perspective path (:mod:`moju_core.perspective`): the positions that leave their
+    neighbours' motion set aside (:func:`moju_core.neighbour_check.trusted`), the isometric
+    prior's shapes, then the loop anchored to them, in each image's camera frame."""
     report("initialising")
     tic = time.perf_counter()
+    visibility = neighbour_check.trusted(W, visibility)
+    timings = {"neighbour_check": time.perf_counter() - tic}
+    tic = time.perf_counter()
     prior, fit = perspective.prior_shapes(W, visibility, intrinsics, params.seed)
-    timings = {"surface_prior": time.perf_counter() - tic}
+    timings["surface_prior"] = time.perf_counter() - tic
     params = params.model_copy(update={"surface_prior": "isometric"})
     report.expected = defaults.expected_iterations(params)
 

@@ -25,10 +25,6 @@ mask or, without one, the textured part of the frame. Each is followed through t
    longer grows with the number of frames. When fewer than ``_KEYFRAME_SUCCESS`` of the live
    tracks can be anchored (the view has changed too much), the current frame becomes the
    keyframe.
-4. **Neighbour check** (:mod:`moju_core.footage.neighbour_check`), once every frame is
-   tracked: a position farther than ``sqrt(_FB_CONSTANT)`` px from the affine motion of the
-   track's nearest neighbours is marked lost in that frame (drift where the surface turns
-   away or meets the silhouette, which the checks above let through).
 
 Positions are pixels of the video: x to the right, y down, the centre of the top-left pixel at
 (0, 0) (not centred on the object). The result is a :class:`Tracks`; :func:`write_tracks`
@@ -50,7 +46,6 @@ import numpy as np
 
 from moju_core.cameras.intrinsics import Intrinsics
 from moju_core.errors import Cancelled, VideoError, VideoTooLarge
-from moju_core.footage.neighbour_check import departures
 from moju_core.footage.video import DEFAULT_LIMITS, VideoLimits, check_clip, open_video, read_mask
 from moju_core.io import Measurements, atomic_output
 from moju_core.validation import MIN_POINTS_PER_FRAME, solvable_points
@@ -510,8 +505,6 @@ def track_frames(
     positions = np.stack(history)  # (F, P, 2)
     W = positions.transpose(0, 2, 1).reshape(2 * positions.shape[0], -1)
     visibility = np.isfinite(positions[:, :, 0])
-    visibility &= ~departures(W, visibility, np.sqrt(_FB_CONSTANT))
-    W[np.repeat(~visibility, 2, axis=0)] = np.nan
     return Tracks(W=W, visibility=visibility, colors=colors, frame_size=(width, height))
 
 

@@ -17,7 +17,6 @@ from numpy.testing import assert_array_equal
 from scipy.ndimage import gaussian_filter
 
 from moju_core.errors import Cancelled, VideoError, VideoTooLarge
-from moju_core.footage.neighbour_check import departures
 from moju_core.footage.render import render_sequence, score_tracks, write_image_folder, write_video
 from moju_core.footage.tracking import Tracks, track_frames, track_video, write_tracks
 from moju_core.footage.video import VideoLimits, open_video
@@ -82,28 +81,13 @@ def test_tracks_layout(paper, paper_tracks):
     assert tracks.visibility.shape == (N_FRAMES, n_points)
     assert_array_equal(tracks.visibility, np.isfinite(tracks.W[0::2]))
     assert_array_equal(np.isfinite(tracks.W[0::2]), np.isfinite(tracks.W[1::2]))
+    # Lost for good: once NaN, NaN in every later frame.
+    assert not (~tracks.visibility[:-1] & tracks.visibility[1:]).any()
     assert tracks.frame_size == SIZE
     # Colours are the first frame's pixels under the grid points.
     start = tracks.W[:2].T.astype(np.int64)
     assert_array_equal(tracks.colors, paper.frames[0][start[:, 1], start[:, 0]])
     assert tracks.colors.dtype == np.uint8
-
-
-def test_the_flow_checks_lose_a_track_for_good_and_the_neighbour_check_hides_frames(
-    paper, paper_tracks, monkeypatch
-):
-    """Without the neighbour check a lost track stays NaN; with it, exactly the positions
-    that leave their neighbours' motion are hidden as well, nothing else changes."""
-    from moju_core.footage import tracking
-
-    monkeypatch.setattr(tracking, "departures", lambda W, visibility, tolerance: ~visibility)
-    unchecked = track_frames(paper.frames, mask=paper.mask)
-    assert not (~unchecked.visibility[:-1] & unchecked.visibility[1:]).any()
-    hidden = departures(unchecked.W, unchecked.visibility, np.sqrt(tracking._FB_CONSTANT))
-    assert hidden.any() and not hidden[0].any()
-    assert_array_equal(paper_tracks.visibility, unchecked.visibility & ~hidden)
-    assert_array_equal(paper_tracks.W[np.repeat(paper_tracks.visibility, 2, axis=0)],
-                       unchecked.W[np.repeat(paper_tracks.visibility, 2, axis=0)])  # fmt: skip
 
 
 # --- occlusion -----------------------------------------------------------------------------
