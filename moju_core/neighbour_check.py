@@ -17,9 +17,11 @@ that moves otherwise (an occluding object, the other side of a fold): tracks tha
 and have moved apart are not neighbours. The map is fitted by least squares reweighted
 :data:`_REWEIGHTS` times with Cauchy weights (scale 2.385 x the neighbours' median misfit,
 the constant that gives 95 % efficiency under Gaussian noise), so that neighbours that drift
-too have little say. A position farther from the prediction than :data:`TOLERANCE_PX` is a
-departure, where the neighbours' motion explains the tracks at all (:func:`explained`: dense
-tracks of a video, not sparse points seen from views far apart).
+too have little say. A position is a departure when it is farther from the prediction than
+the neighbours' own median distance from it plus :data:`TOLERANCE_PX`: at a fold, where the
+motion is not affine, the neighbours are off the map too, and only what stands out from them
+counts. Departures are sought only where the neighbours' motion explains the tracks at all
+(:func:`explained`: dense tracks of a video, not sparse points seen from views far apart).
 
 Cost: per frame and reference frame a k-d tree over the P seen points (in 4 dimensions) and
 P small (3 x 3) systems per reweighting round, ``O(F P (log P + k))`` time and ``O(P k)``
@@ -45,9 +47,9 @@ __all__ = [
 #: Neighbours whose affine motion predicts a track position (about three grid steps around
 #: it on the tracker's grid).
 N_NEIGHBOURS = 24
-#: A position farther than this (px) from its neighbours' affine motion is a departure: the
-#: round-trip error the tracker's forward-backward check tolerates, sqrt(0.8 px^2)
-#: (``moju_core.footage.tracking``).
+#: A position farther than this (px) from its neighbours' affine motion, beyond their own
+#: median distance from it, is a departure: the round-trip error the tracker's
+#: forward-backward check tolerates, sqrt(0.8 px^2) (``moju_core.footage.tracking``).
 TOLERANCE_PX = float(np.sqrt(0.8))
 #: Reweighting rounds of the affine fit after the plain least-squares one.
 _REWEIGHTS = 3
@@ -59,8 +61,10 @@ _MIN_SCALE_PX = 1e-3
 _MIN_NEIGHBOURS = 4
 
 
-def neighbour_residuals(W: np.ndarray, visibility: np.ndarray, k: int = N_NEIGHBOURS) -> np.ndarray:
-    """Distance (px) of every track position from its neighbours' affine motion.
+def neighbour_residuals(
+    W: np.ndarray, visibility: np.ndarray, k: int = N_NEIGHBOURS
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (px) of every track position from its neighbours' affine motion, and theirs.
 
     Parameters
     ----------
@@ -77,67 +81,84 @@ def neighbour_residuals(W: np.ndarray, visibility: np.ndarray, k: int = N_NEIGHB
         ``A_f`` the robust affine fit of the ``k`` tracks seen in frames ``s`` and ``f``
         nearest to ``p`` in both together; 0 in frame ``s``, NaN where the track is not seen
         or fewer than :data:`_MIN_NEIGHBOURS` neighbours are.
+    typical : ndarray of shape (F, P)
+        The median distance of the ``k`` neighbours themselves from ``A_f`` (px): how far
+        the motion there is from affine (large at a fold, an edge, or where neighbours drift
+        apart); 0 and NaN as ``residual``.
     """
     n_frames, n_points = visibility.shape
     positions = W.reshape(n_frames, 2, n_points).transpose(0, 2, 1)
     residual = np.full((n_frames, n_points), np.nan)
+    typical = residual.copy()
     first = np.argmax(visibility, axis=0)
     for s in np.unique(first[visibility.any(axis=0)]):
         group = np.flatnonzero((first == s) & visibility[s])
-        residual[s, group] = 0.0
+        residual[s, group] = typical[s, group] = 0.0
         for f in range(s + 1, n_frames):
             judged = group[visibility[f, group]]
-            residual[f, judged] = _residuals(
-                positions[s], positions[f], judged, k, visibility[s] & visibility[f]
+            pool = visibility[s] & visibility[f]
+            residual[f, judged], typical[f, judged] = _residuals(
+                positions[s], positions[f], judged, k, pool
             )
-    return residual
+    return residual, typical
 
 
 def _residuals(
     start: np.ndarray, now: np.ndarray, judged: np.ndarray, k: int, both: np.ndarray
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """(n,) residuals of the tracks ``judged`` (n,) from frame positions ``start`` (P, 2) to
-    ``now`` (P, 2), neighbours among the tracks ``both`` (P,) bool seen in the two frames."""
+    ``now`` (P, 2), neighbours among the tracks ``both`` (P,) bool seen in the two frames,
+    and (n,) their neighbours' median residuals."""
     pool = np.flatnonzero(both)
     n_neighbours = min(k, pool.size - 1)
     if judged.size == 0 or n_neighbours < _MIN_NEIGHBOURS:
-        return np.full(judged.size, np.nan)
+        return np.full(judged.size, np.nan), np.full(judged.size, np.nan)
     places = np.concatenate([start[pool], now[pool]], axis=1)  # (m, 4)
     query = np.concatenate([start[judged], now[judged]], axis=1)
     _, nearest = cKDTree(places).query(query, n_neighbours + 1)
     neighbours = pool[nearest[:, 1:]]  # (n, k): the first is the point itself
     source = start[neighbours] - start[judged][:, None]  # centred on the point
-    predicted = _robust_affine_at_origin(source, now[neighbours])
-    return np.linalg.norm(now[judged] - predicted, axis=1)
+    coefficients = _robust_affine(source, now[neighbours])
+    misfit = np.linalg.norm(now[neighbours] - _apply(source, coefficients), axis=2)
+    residual = np.linalg.norm(now[judged] - coefficients[:, 2], axis=1)  # the map at the point
+    return residual, np.median(misfit, axis=1)
 
 
-def _robust_affine_at_origin(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(n, 2): the affine maps fitted from ``source`` (n, k, 2) to ``target`` (n, k, 2) by
-    Cauchy-weighted least squares, each evaluated at the origin (its translation)."""
-    design = np.concatenate([source, np.ones(source.shape[:2] + (1,))], axis=2)  # (n, k, 3)
+def _robust_affine(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(n, 3, 2): the affine maps from ``source`` (n, k, 2) to ``target`` (n, k, 2), fitted by
+    Cauchy-weighted least squares: rows 0-1 the linear part, row 2 the translation (the map
+    at the origin)."""
     weights = np.ones(source.shape[:2])
     for _ in range(_REWEIGHTS):
-        misfit = np.linalg.norm(target - design @ _weighted_fit(design, target, weights), axis=2)
+        fitted = _apply(source, _weighted_fit(source, target, weights))
+        misfit = np.linalg.norm(target - fitted, axis=2)  # (n, k)
         scale = _CAUCHY * np.maximum(np.median(misfit, axis=1, keepdims=True), _MIN_SCALE_PX)
-        weights = 1.0 / (1.0 + (misfit / scale) ** 2)  # (n, k)
-    return _weighted_fit(design, target, weights)[:, 2]
+        weights = 1.0 / (1.0 + (misfit / scale) ** 2)
+    return _weighted_fit(source, target, weights)
 
 
-def _weighted_fit(design: np.ndarray, target: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """(n, 3, 2): weighted least-squares coefficients of ``target`` (n, k, 2) on ``design``
-    (n, k, 3) with ``weights`` (n, k)."""
+def _apply(source: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """(n, k, 2): the affine maps ``coefficients`` (n, 3, 2) at the points ``source``."""
+    return source @ coefficients[:, :2] + coefficients[:, 2:3]
+
+
+def _weighted_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(n, 3, 2): weighted least-squares affine maps from ``source`` (n, k, 2) to ``target``
+    (n, k, 2) with ``weights`` (n, k)."""
+    design = np.concatenate([source, np.ones(source.shape[:2] + (1,))], axis=2)  # (n, k, 3)
     weighted = (design * weights[:, :, None]).transpose(0, 2, 1)  # (n, 3, k)
     return np.linalg.solve(weighted @ design + 1e-9 * np.eye(3), weighted @ target)
 
 
 def departures(W: np.ndarray, visibility: np.ndarray) -> np.ndarray:
-    """(F, P) bool: the seen positions farther than :data:`TOLERANCE_PX` from their
-    neighbours' affine motion (:func:`neighbour_residuals`), where that motion explains the
-    tracks (:func:`explained`); none elsewhere."""
-    residual = np.nan_to_num(neighbour_residuals(W, visibility), nan=0.0)
+    """(F, P) bool: the seen positions farther from their neighbours' affine motion than
+    :data:`TOLERANCE_PX` beyond the neighbours' own median distance from it
+    (:func:`neighbour_residuals`), where that motion explains the tracks (:func:`explained`);
+    none elsewhere."""
+    residual, typical = (np.nan_to_num(a, nan=0.0) for a in neighbour_residuals(W, visibility))
     if not explained(residual):
         return np.zeros(visibility.shape, dtype=bool)
-    return residual > TOLERANCE_PX
+    return residual - typical > TOLERANCE_PX
 
 
 def explained(residual: np.ndarray) -> bool:
