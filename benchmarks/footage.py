@@ -47,9 +47,9 @@ import contextlib
 import functools
 import time
 import warnings
-from collections.abc import Iterator
 from dataclasses import replace
 from typing import Any
+from unittest import mock
 
 import numpy as np
 from harness import RESULTS, provenance, table, write_json, write_markdown
@@ -148,28 +148,19 @@ def visible_e3d(estimate: np.ndarray, truth: np.ndarray, visible: np.ndarray) ->
     )
 
 
-@contextlib.contextmanager
-def neighbour_check_off() -> Iterator[None]:
+def neighbour_check_off() -> contextlib.AbstractContextManager:
     """Within the block, the perspective solve keeps every seen position (the ablation of
     ``moju_core.neighbour_check``)."""
-    original = neighbour_check.trusted
-    neighbour_check.trusted = lambda W, visibility: visibility
-    try:
-        yield
-    finally:
-        neighbour_check.trusted = original
+    return mock.patch.object(neighbour_check, "trusted", lambda W, visibility: visibility)
 
 
-@contextlib.contextmanager
-def prior_options(**options: Any) -> Iterator[None]:
+def prior_options(**options: Any) -> contextlib.AbstractContextManager:
     """Within the block, the perspective prior runs ``max_depth_shapes`` with ``options``
     (its keyword arguments, for an ablation of a setting the solver does not expose)."""
     original = perspective.max_depth_shapes
-    perspective.max_depth_shapes = functools.partial(original, **options)
-    try:
-        yield
-    finally:
-        perspective.max_depth_shapes = original
+    return mock.patch.object(
+        perspective, "max_depth_shapes", functools.partial(original, **options)
+    )
 
 
 def solve(
