@@ -54,6 +54,7 @@ from moju_core.io import Measurements, read_measurements, read_result, write_mea
 from moju_core.io import write_result as write_result_file
 from moju_core.metrics import evaluate as evaluate_scores
 from moju_core.params import SolverParams, rotation_method
+from moju_core.perspective import used_camera
 from moju_core.ply import frame_file_name, write_ply_frames
 from moju_core.result import Diagnostics, Progress, Result
 
@@ -564,7 +565,9 @@ def reconstruct(
             "input": Path(input_file).name,
             "created_by": "moju reconstruct",
         }
-        if intrinsics is not None:
+        if intrinsics is not None:  # the camera the solve used: an estimated focal length too
+            plan = result.diagnostics.plan if result.diagnostics is not None else None
+            intrinsics = used_camera(intrinsics, plan)
             metadata["intrinsics"] = intrinsics.to_metadata()
         outputs.write_result(output, result, metadata)
         if ply_dir is not None:
@@ -603,6 +606,7 @@ def _camera_line(intrinsics: Intrinsics) -> str:
         "given": "given",
         "focal": "from --focal",
         "default": "default: 1.2 x the larger image side; give --focal or --intrinsics",
+        "estimated": "estimated from the tracks; give --focal or --intrinsics if known",
     }[intrinsics.origin]
     return (
         f"camera: focal {intrinsics.fx:g} x {intrinsics.fy:g} px, principal point "

@@ -37,11 +37,14 @@ from moju_core.loop import admm, lrr
 from moju_core.loop.data_terms import AnchoredTerm
 from moju_core.params import SolverParams
 from moju_core.priors.dense_depth import homogeneous
+from moju_core.priors.focal_length import estimate_focal
 from moju_core.priors.max_depth import SurfaceFit, max_depth_shapes
 from moju_core.spectrum import noise_variance, significant_rank, spectrum
 
 if TYPE_CHECKING:
     from collections.abc import Callable
+
+    from moju_core.solve_plan import SolvePlan
 
 #: Weight of the pull towards the prior's shapes, relative to the data term of the
 #: scale-normalised tracks: as much as the tracks themselves, so that neither the prior nor the
@@ -78,6 +81,28 @@ def uses_surface_prior(params: SolverParams, intrinsics: Intrinsics | None) -> b
                 "surface_prior='none'"
             )
     return intrinsics is not None and params.method != "pta" and params.rotations != "known"
+
+
+def solving_camera(
+    W: np.ndarray, visibility: np.ndarray, intrinsics: Intrinsics, seed: int
+) -> Intrinsics:
+    """The camera the perspective solve uses: ``intrinsics`` as given, except the default
+    camera of a frame size (origin ``"default"``: nobody named one), whose focal length is
+    estimated from the tracks ``W`` (2F, P) pixels, ``visibility`` (F, P)
+    (:func:`moju_core.priors.focal_length.estimate_focal`: origin ``"estimated"``, or
+    ``"default"`` still where the tracks do not tell)."""
+    if intrinsics.origin != "default":
+        return intrinsics
+    return estimate_focal(W, visibility, intrinsics, seed=seed).intrinsics
+
+
+def used_camera(given: Intrinsics, plan: SolvePlan | None) -> Intrinsics:
+    """The camera a solve of pixels with the camera ``given`` used, from its ``plan``
+    (:attr:`moju_core.result.Diagnostics.plan`): ``given`` with the estimated focal length
+    where the solve estimated one, else ``given``."""
+    if plan is None or plan.focal_origin != "estimated" or plan.focal_px is None:
+        return given
+    return given.with_focal(plan.focal_px, "estimated")
 
 
 def prior_shapes(

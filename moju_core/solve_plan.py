@@ -57,6 +57,13 @@ class SolvePlan:
     surface_prior : {"none", "isometric"}
         The surface prior the loop started from and was anchored to
         (:mod:`moju_core.perspective`).
+    focal_px : float or None
+        The perspective solve's focal length in pixels; None for an orthographic solve.
+    focal_origin : {"given", "focal", "default", "estimated"} or None
+        Where that focal length came from (:attr:`moju_core.cameras.intrinsics.Intrinsics.
+        origin`): ``"estimated"`` when the camera was the default of the frame size and the
+        tracks preferred another focal length (:mod:`moju_core.priors.focal_length`),
+        ``"default"`` when they did not.
     """
 
     method: str
@@ -73,6 +80,8 @@ class SolvePlan:
     camera_model: Literal["orthographic", "perspective"] = "orthographic"
     surface_prior: Literal["none", "isometric"] = "none"
     rotation_smoothing: float = 0.0
+    focal_px: float | None = None
+    focal_origin: str | None = None
 
     def __str__(self) -> str:
         return "\n".join(f"{field.name}: {getattr(self, field.name)}" for field in fields(self))

@@ -228,7 +228,9 @@ def _solve(
 ) -> tuple[Result, list[warnings.WarningMessage], dict[str, Any] | None, Intrinsics | None]:
     """Track (a video job) and solve; the result, the warnings, the tracking summary and the
     camera the solve used."""
-    from moju_core import reconstruct  # the solver loads scikit-learn; only workers need it
+    # The solver loads scikit-learn; only workers need it.
+    from moju_core import reconstruct
+    from moju_core.perspective import used_camera
 
     # BLAS/OpenMP threads per process (MOJU_WORKER_THREADS) for the tracker here, and for the
     # solver through threads= below: N worker processes x T threads should not exceed the
@@ -259,7 +261,9 @@ def _solve(
         )
     for warning in caught:
         logger.warning("job %s: %s", record.id, warning.message)
-    return result, caught, tracking, measurements.intrinsics
+    camera = measurements.intrinsics
+    plan = result.diagnostics.plan if result.diagnostics is not None else None
+    return result, caught, tracking, None if camera is None else used_camera(camera, plan)
 
 
 def _known_rotations(record: JobRecord, uploaded: np.ndarray | None) -> np.ndarray | None:

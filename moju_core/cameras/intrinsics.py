@@ -19,7 +19,10 @@ Where K comes from, recorded in :attr:`Intrinsics.origin`:
   (:meth:`Intrinsics.from_focal`);
 * ``"default"``: nothing was given but the frame size is known: COLMAP's default focal
   length, :data:`DEFAULT_FOCAL_FACTOR` x the larger image side, and the principal point at
-  the image centre (:meth:`Intrinsics.default_for`).
+  the image centre (:meth:`Intrinsics.default_for`);
+* ``"estimated"``: the default camera with the focal length the perspective solve found in
+  the tracks (:func:`moju_core.priors.focal_length.estimate_focal`,
+  :meth:`Intrinsics.with_focal`).
 
 Tracks whose frame size is unknown have no K: they are treated as orthographic, as before.
 """
@@ -58,8 +61,8 @@ MAX_FRAME_SIDE = 65_536
 #: Largest intrinsics text read, in bytes: three lines of three numbers and comments.
 MAX_INTRINSICS_BYTES = 64 * 1024
 
-IntrinsicsOrigin = Literal["given", "focal", "default"]
-_ORIGINS = ("given", "focal", "default")
+IntrinsicsOrigin = Literal["given", "focal", "default", "estimated"]
+_ORIGINS = ("given", "focal", "default", "estimated")
 _FIX_K = (
     "K must be the 3 x 3 upper-triangular camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] "
     "in pixels"
@@ -171,9 +174,9 @@ class Intrinsics:
     K : ndarray of shape (3, 3), float64, read-only
         Upper-triangular camera matrix in pixels (validated on construction, see
         :func:`check_intrinsics_matrix`).
-    origin : {"given", "focal", "default"}
-        How K was chosen: given as a matrix, built from a focal length, or the default for
-        the frame size (see the module's description).
+    origin : {"given", "focal", "default", "estimated"}
+        How K was chosen: given as a matrix, built from a focal length, the default for the
+        frame size, or estimated from the tracks (see the module's description).
     """
 
     K: np.ndarray
@@ -205,6 +208,13 @@ class Intrinsics:
         centre, square pixels, no skew. ``origin`` is ``"default"``."""
         width, height = check_frame_size(frame_size)
         return cls(_centred(DEFAULT_FOCAL_FACTOR * max(width, height), (width, height)), "default")
+
+    def with_focal(self, focal_px: float, origin: IntrinsicsOrigin) -> Intrinsics:
+        """This camera with both focal lengths set to ``focal_px`` pixels (square pixels; the
+        principal point and skew kept) and the given ``origin``."""
+        K = self.K.copy()
+        K[0, 0] = K[1, 1] = _check_focal(focal_px)
+        return Intrinsics(K, origin)
 
     @property
     def fx(self) -> float:
