@@ -5,6 +5,8 @@ too little rotation for depth from motion, and an orthographic model explains th
 motion towards and away from the camera as deformation. With the camera's intrinsics K the
 solve instead
 
+0. estimates the focal length where K is only the default of the frame size
+   (:func:`solving_camera`, :func:`moju_core.priors.focal_length.estimate_focal`);
 1. maps the pixel tracks to viewing rays (:meth:`moju_core.cameras.intrinsics.Intrinsics.
    normalise`);
 2. finds the depth of every point along its ray by the maximum-depth heuristic of an

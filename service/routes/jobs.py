@@ -200,8 +200,10 @@ _SUBMIT_BODY: dict[str, Any] = {
                                 "/ 2, (height - 1) / 2): needs the frame size, a video's or "
                                 "the frame_size of a tracks file. Not with 'intrinsics'. "
                                 "Without either, a video gets the default camera (focal "
-                                "length 1.2 x the larger image side) and a tracks file keeps "
-                                "its own K."
+                                "length 1.2 x the larger image side, which the solve replaces "
+                                "by the focal length it estimates from the tracks where they "
+                                "tell: the result's metadata 'intrinsics' records the camera "
+                                "used) and a tracks file keeps its own K."
                             ),
                             "example": "800",
                         },

@@ -338,7 +338,9 @@ def test_reconstruct_takes_the_trackers_own_output_as_the_video(face_files, tmp_
         f"warning: {short} of {seen.size} tracks are seen in fewer than 2 frames (a point "
         f"seen once gives no depth) and are left out; {seen.size - short} are kept"
     ]
-    assert "(default: 1.2 x the larger image side" in outcome.stdout
+    # No camera given: the default of the frame size, whose focal length the solve estimates
+    # (it says which it used).
+    assert "(estimated from the tracks" in outcome.stdout or "(default: 1.2 x" in outcome.stdout
     from_video = tmp_path / "from_video.npz"
     outcome = _run("reconstruct", str(files["video"]), "--mask", str(files["mask"]), "-o",
                    str(from_video), "--step", "6", "--max-iter", "2", "-q")  # fmt: skip
@@ -350,9 +352,14 @@ def test_reconstruct_takes_the_trackers_own_output_as_the_video(face_files, tmp_
     assert file_result.shapes.shape == video_result.shapes.shape
     assert file_result.shapes.shape[1] == seen.size - short
     np.testing.assert_array_equal(file_result.visibility, video_result.visibility)
-    default = {"K": [[192.0, 0.0, 79.5], [0.0, 192.0, 59.5], [0.0, 0.0, 1.0]],
-               "origin": "default"}  # fmt: skip
-    assert file_result.metadata["intrinsics"] == video_result.metadata["intrinsics"] == default
+    plan = file_result.diagnostics.plan
+    focal = plan.focal_px
+    used = {"K": [[focal, 0.0, 79.5], [0.0, focal, 59.5], [0.0, 0.0, 1.0]],
+            "origin": plan.focal_origin}  # fmt: skip
+    assert plan.focal_origin in ("default", "estimated")
+    assert plan.focal_origin == "estimated" or focal == 192.0  # the default: 1.2 x 160 px
+    assert file_result.metadata["intrinsics"] == video_result.metadata["intrinsics"] == used
+    assert video_result.diagnostics.plan.focal_px == focal
 
 
 def test_reconstruct_takes_the_camera_options(files, tmp_path):

@@ -126,6 +126,21 @@ def test_a_video_without_a_camera_gets_the_default_of_its_frame_size(
     assert job["input"]["camera"] == {"K": default, "source": "default"}
 
 
+def test_a_default_camera_job_records_the_camera_its_solve_used(
+    client: TestClient, settings: Settings, clip
+) -> None:
+    # The solve estimates the default camera's focal length from the tracks; the result's
+    # metadata says which focal length it used and where it came from, as the plan does.
+    job = post(client, clip["video"], mask=clip["mask"]).json()
+    finished = run(client, settings, job["id"])
+    assert finished["input"]["camera"]["source"] == "default"  # what was asked for
+    result = read_result(stored(settings, job["id"], "result.h5"))
+    plan = result.diagnostics.plan
+    assert plan.focal_origin in ("default", "estimated")
+    used = Intrinsics.default_for(SIZE).with_focal(plan.focal_px, plan.focal_origin)
+    assert result.metadata["intrinsics"] == used.to_metadata()
+
+
 def test_a_video_with_intrinsics_keeps_the_given_matrix(client: TestClient, clip) -> None:
     job = post(client, clip["video"], intrinsics=K_TEXT.encode()).json()
     assert job["input"]["camera"] == {"K": GIVEN_K, "source": "intrinsics"}
