@@ -625,18 +625,16 @@ def _perspective_reconstruct(
     report: _Reporter,
     start: float,
 ) -> Result:
-    """The perspective path (:mod:`moju_core.perspective`): the positions that leave their
-    neighbours' motion set aside (:func:`moju_core.neighbour_check.trusted`), the focal length
-    of a default camera estimated (:func:`moju_core.priors.focal_length.estimate_focal`), the
-    isometric prior's shapes, then the loop anchored to them, in each image's camera frame."""
+    """The perspective path (:mod:`moju_core.perspective`): positions that leave their
+    neighbours' motion set aside (:mod:`moju_core.neighbour_check`), a default camera's focal
+    length estimated, the isometric prior's shapes, then the loop anchored to them."""
     report("initialising")
     tic = time.perf_counter()
     visibility = neighbour_check.trusted(W, visibility)
     timings = {"neighbour_check": time.perf_counter() - tic}
-    if intrinsics.origin == "default":
-        tic = time.perf_counter()
-        intrinsics = perspective.solving_camera(W, visibility, intrinsics, params.seed)
-        timings["focal_length"] = time.perf_counter() - tic
+    tic = time.perf_counter()
+    intrinsics = perspective.solving_camera(W, visibility, intrinsics, params.seed)
+    timings["focal_length"] = time.perf_counter() - tic
     tic = time.perf_counter()
     prior, fit = perspective.prior_shapes(W, visibility, intrinsics, params.seed)
     timings["surface_prior"] = time.perf_counter() - tic
