@@ -94,12 +94,13 @@ SLANT_BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.7), (0.7, 1.01))
 
 
 def scene_video(
-    kind: str, seed: int, args: argparse.Namespace
+    kind: str, seed: int, args: argparse.Namespace, focal_factor: float = DEFAULT_FOCAL_FACTOR
 ) -> tuple[FootageScene, PerspectiveVideo]:
-    """Render one scene at the run's size; the focal length is 1.2 x the larger side."""
+    """Render one scene at the run's size; the focal length is ``focal_factor`` x the larger
+    side (by default the default camera's, 1.2)."""
     scene = footage_scene(kind, n_frames=args.frames, n_points=args.mesh, seed=seed)
     camera = Intrinsics.from_focal(
-        DEFAULT_FOCAL_FACTOR * max(args.width, args.height), (args.width, args.height)
+        focal_factor * max(args.width, args.height), (args.width, args.height)
     )
     return scene, render_perspective(
         scene.shapes,
