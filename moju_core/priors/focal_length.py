@@ -78,8 +78,9 @@ class FocalEstimate:
     candidates : ndarray of shape (C,)
         Focal lengths tried, pixels, increasing; the default among them.
     residuals : ndarray of shape (C, S)
-        Isometry residual (dimensionless) per candidate and anchor sample; inf where the cone
-        program left no edge measured.
+        Isometry residual (dimensionless) per candidate and sample; inf where the cone program
+        left no edge measured or the sample's images see too few points twice (a sample with
+        an inf keeps the default).
     accepted : bool
         Whether the tracks preferred another focal length than the default significantly.
     seconds : float
@@ -116,6 +117,8 @@ def estimate_focal(
     residuals = np.full((candidates.size, N_SAMPLES), np.inf)
     for s in range(N_SAMPLES):
         pixels, seen = _sample(W, visibility, rng)
+        if seen.shape[1] <= _K_NEIGHBOURS:  # too few points seen twice: nothing measured
+            continue
         rays = _rays(pixels, seen, default)
         anchors = spread_anchors(rays, seen, n_anchor=N_ANCHORS, seed=seed + s)
         pixels, seen = pixels[:, anchors], seen[:, anchors]

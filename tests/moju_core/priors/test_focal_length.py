@@ -43,6 +43,23 @@ def test_close_view_moves_towards_the_focal_length(sheet):
     assert estimate.residuals.shape == (estimate.candidates.size, focal_length.N_SAMPLES)
 
 
+def test_tracks_too_short_for_a_sample_keep_the_default():
+    # 40 frames, every point seen in 2 consecutive frames only: 8 images drawn at random see
+    # few points twice: a sample without enough measures nothing, and the default is kept.
+    rng = np.random.default_rng(0)
+    n_frames, n_points = 40, 400
+    visibility = np.zeros((n_frames, n_points), bool)
+    first = rng.integers(0, n_frames - 1, n_points)
+    visibility[first, np.arange(n_points)] = visibility[first + 1, np.arange(n_points)] = True
+    W = np.where(
+        np.repeat(visibility, 2, axis=0), rng.uniform(0, 480, (2 * n_frames, n_points)), np.nan
+    )
+    default = Intrinsics.default_for(FRAME)
+    estimate = estimate_focal(W, visibility, default)
+    assert not estimate.accepted and estimate.intrinsics is default
+    assert np.isinf(estimate.residuals).any()  # a sample that measured nothing
+
+
 def test_a_gain_within_the_samples_spread_keeps_the_default():
     default = 2
     steady = np.array([[3.0, 3.0, 3.0, 3.0], [2.0, 2.1, 1.9, 2.0], [2.5, 2.4, 2.6, 2.5]])
