@@ -566,8 +566,7 @@ def reconstruct(
             "created_by": "moju reconstruct",
         }
         if intrinsics is not None:  # the camera the solve used: an estimated focal length too
-            plan = result.diagnostics.plan if result.diagnostics is not None else None
-            intrinsics = used_camera(intrinsics, plan)
+            intrinsics = used_camera(intrinsics, result)
             metadata["intrinsics"] = intrinsics.to_metadata()
         outputs.write_result(output, result, metadata)
         if ply_dir is not None:

@@ -46,7 +46,7 @@ from moju_core.spectrum import noise_variance, significant_rank, spectrum
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from moju_core.solve_plan import SolvePlan
+    from moju_core.result import Result
 
 #: Weight of the pull towards the prior's shapes, relative to the data term of the
 #: scale-normalised tracks: as much as the tracks themselves, so that neither the prior nor the
@@ -98,10 +98,11 @@ def solving_camera(
     return estimate_focal(W, visibility, intrinsics, seed=seed).intrinsics
 
 
-def used_camera(given: Intrinsics, plan: SolvePlan | None) -> Intrinsics:
-    """The camera a solve of pixels with the camera ``given`` used, from its ``plan``
+def used_camera(given: Intrinsics, result: Result) -> Intrinsics:
+    """The camera the solve ``result`` of pixels with the camera ``given`` used, from its plan
     (:attr:`moju_core.result.Diagnostics.plan`): ``given`` with the estimated focal length
     where the solve estimated one, else ``given``."""
+    plan = result.diagnostics.plan if result.diagnostics is not None else None
     if plan is None or plan.focal_origin != "estimated" or plan.focal_px is None:
         return given
     return given.with_focal(plan.focal_px, "estimated")

@@ -262,8 +262,7 @@ def _solve(
     for warning in caught:
         logger.warning("job %s: %s", record.id, warning.message)
     camera = measurements.intrinsics
-    plan = result.diagnostics.plan if result.diagnostics is not None else None
-    return result, caught, tracking, None if camera is None else used_camera(camera, plan)
+    return result, caught, tracking, None if camera is None else used_camera(camera, result)
 
 
 def _known_rotations(record: JobRecord, uploaded: np.ndarray | None) -> np.ndarray | None:

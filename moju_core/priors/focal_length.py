@@ -52,11 +52,12 @@ __all__ = [
 #: Candidate focal lengths: the default x 2^k for these k, half an octave apart (0.35 to 2 x
 #: the default: fields of view of 100 to 23 degrees along the larger side).
 CANDIDATE_OCTAVES = np.arange(-1.5, 1.01, 0.5)
-#: Images the residual is measured on, spread evenly through the sequence.
+#: Images of each sample, drawn at random from the sequence.
 N_IMAGES = 8
 #: Anchors (points) of each cone program.
 N_ANCHORS = 100
-#: Anchor samples: the residual's spread over them is what a difference is judged against.
+#: Samples (of images and anchors): the residual's spread over them is what a difference
+#: between two focal lengths is judged against.
 N_SAMPLES = 3
 #: Level of the one-sided paired t-test an estimate must pass to replace the default.
 SIGNIFICANCE = 0.05
@@ -73,8 +74,6 @@ class FocalEstimate:
     intrinsics : Intrinsics
         The camera to solve with: the default one when ``accepted`` is False, else the default
         with ``focal_px`` (origin ``"estimated"``).
-    focal_px : float
-        Focal length of ``intrinsics``, pixels.
     candidates : ndarray of shape (C,)
         Focal lengths tried, pixels, increasing; the default among them.
     residuals : ndarray of shape (C, S)
@@ -88,11 +87,15 @@ class FocalEstimate:
     """
 
     intrinsics: Intrinsics
-    focal_px: float
     candidates: np.ndarray
     residuals: np.ndarray
     accepted: bool
     seconds: float
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length of :attr:`intrinsics`, pixels."""
+        return self.intrinsics.fx
 
 
 def estimate_focal(
@@ -127,11 +130,9 @@ def estimate_focal(
             camera = default.with_focal(focal, "given")
             residuals[c, s] = _residual(_rays(pixels, seen, camera), seen, edges)
     best, accepted = _choice(residuals, int(np.argmin(np.abs(CANDIDATE_OCTAVES))))
-    focal = _refined(candidates, residuals.mean(axis=1), best) if accepted else default.fx
-    intrinsics = default.with_focal(focal, "estimated") if accepted else default
-    return FocalEstimate(
-        intrinsics, float(focal), candidates, residuals, accepted, time.perf_counter() - start
-    )
+    refined = _refined(candidates, residuals.mean(axis=1), best) if accepted else None
+    intrinsics = default if refined is None else default.with_focal(refined, "estimated")
+    return FocalEstimate(intrinsics, candidates, residuals, accepted, time.perf_counter() - start)
 
 
 def _sample(
@@ -167,15 +168,14 @@ def _residual(rays: np.ndarray, seen: np.ndarray, edges: np.ndarray) -> float:
 def _choice(residuals: np.ndarray, default: int) -> tuple[int, bool]:
     """The candidate with the smallest mean residual over the samples (C, S), and whether its
     improvement over candidate ``default`` is significant (one-sided paired t-test at
-    :data:`SIGNIFICANCE`; with one sample, any improvement)."""
+    :data:`SIGNIFICANCE`; where the samples agree exactly, or the default measured nothing
+    in one, any improvement)."""
     mean = residuals.mean(axis=1)
     best = int(np.argmin(mean))
     if best == default or not np.isfinite(mean[best]):
         return default, False
     gain = residuals[default] - residuals[best]  # (S,): inf where the default failed
-    if gain.size == 1 or not np.all(np.isfinite(gain)):
-        return best, bool(np.mean(gain) > 0)
-    spread = np.std(gain, ddof=1)
+    spread = np.std(gain, ddof=1) if np.all(np.isfinite(gain)) else 0.0
     if spread == 0.0:
         return best, bool(np.mean(gain) > 0)
     t = np.mean(gain) / (spread / np.sqrt(gain.size))

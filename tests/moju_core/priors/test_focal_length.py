@@ -92,9 +92,9 @@ def test_solve_records_and_uses_the_estimate(sheet):
     assert plan.focal_origin == "estimated"
     assert abs(np.log(plan.focal_px / TRUE_FOCAL)) < 0.3
     assert "focal_length" in result.timings
-    used = used_camera(default, plan)
+    used = used_camera(default, result)
     assert used.origin == "estimated" and used.fx == plan.focal_px
     given = reconstruct(W, SolverParams(seed=0), intrinsics=Intrinsics.from_focal(650.0, FRAME))
     assert given.diagnostics.plan.focal_px == 650.0
     assert given.diagnostics.plan.focal_origin == "focal"
-    assert used_camera(default, given.diagnostics.plan) is default
+    assert used_camera(default, given) is default
